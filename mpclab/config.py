@@ -1,0 +1,36 @@
+"""The root config schema: the top-level keys every composed config has.
+
+Component groups (``plant``, ``controller``, ...) carry their own schemas (see
+:mod:`mpclab.registry`); here they are typed ``Any`` so that any registered choice fits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING
+
+
+@dataclass
+class FiguresConf:
+    enabled: bool = True
+    dpi: int = 110
+
+
+@dataclass
+class Config:
+    name: str = "run"          # experiment name: run records and output folders carry it
+    seed: int = 0              # every random draw of a run derives from it
+    progress: bool = True      # a progress line for interactive runs
+    figures: FiguresConf = field(default_factory=FiguresConf)
+    plant: Any = MISSING
+    controller: Any = MISSING
+    objective: Any = MISSING
+    supervisor: Any = MISSING
+    scenario: Any = MISSING
+    recorder: Any = MISSING
+
+
+ConfigStore.instance().store(name="config_schema", node=Config)

@@ -1,0 +1,1 @@
+"""Solver backends: one file per backend, all behind :class:`~mpclab.controllers.base.Controller`."""

@@ -1,0 +1,138 @@
+"""The controller interface every backend implements, and the shared failure fallback.
+
+``step(t, x, ctx)`` returns a :class:`ControlStep`. A backend implements ``_solve``; the
+base class turns an exception or a non-optimal status into the fallback (the previous plan
+shifted by one step, or zero input when there is none) and records the status, so a failed
+solve never ends a run.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mpclab.plants.base import Plant
+
+FloatArray = npt.NDArray[np.float64]
+
+#: statuses that count as a successful solve; anything else triggers the fallback
+OK_STATUSES = frozenset({"optimal"})
+
+
+@dataclass
+class StepContext:
+    """What the controller may know at one step besides the state.
+
+    Attributes
+    ----------
+    goal
+        Goal state ``(nx,)`` (labels the scenario does not set are 0).
+    target
+        Reference over the horizon ``(T+1, nx)``: the goal repeated, or a preview.
+    detections
+        Detected obstacle points ``(n, 2)`` from the range sensor (empty without one).
+    active
+        Names of the objective terms the supervisor has switched on (None: all).
+    mode
+        The supervisor's mode name (for logging).
+    """
+
+    goal: FloatArray
+    target: FloatArray
+    detections: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    active: frozenset[str] | None = None
+    mode: str = ""
+
+
+@dataclass
+class ControlStep:
+    """One controller call's result.
+
+    ``x_pred (T+1, nx)`` and ``u_pred (T, nu)`` are the predicted horizon; ``u`` is applied.
+    """
+
+    u: FloatArray
+    x_pred: FloatArray
+    u_pred: FloatArray
+    status: str
+    cost: float = float("nan")
+    fallback: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status in OK_STATUSES
+
+
+class Controller(ABC):
+    """Base class of all backends.
+
+    Subclasses build their problem once in ``__init__`` and implement :meth:`_solve`.
+    """
+
+    #: registered backend name (set by the registry decorator)
+    registered_name: str = ""
+
+    def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
+        if int(horizon) < 1:
+            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        if float(dt) <= 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        self.plant = plant
+        self.horizon = int(horizon)
+        self.dt = float(dt)
+        self._plan: ControlStep | None = None
+
+    def reset(self, x0: npt.ArrayLike) -> None:
+        """Forget the previous plan before a new run from ``x0``."""
+        self._plan = None
+
+    def step(self, t: float, x: npt.ArrayLike, ctx: StepContext) -> ControlStep:
+        """Solve at time ``t`` from state ``x``; never raises for a failed solve."""
+        x = np.asarray(x, dtype=float)
+        try:
+            res = self._solve(t, x, ctx)
+        except Exception as exc:  # a solver crash must not end a sweep: record and fall back
+            res = ControlStep(
+                u=np.zeros(self.plant.nu),
+                x_pred=np.tile(x, (self.horizon + 1, 1)),
+                u_pred=np.zeros((self.horizon, self.plant.nu)),
+                status=f"exception:{type(exc).__name__}",
+                info={"error": str(exc)},
+            )
+        if res.ok:
+            self._plan = res
+            return res
+        return self._fallback(x, res.status, res.info)
+
+    @abstractmethod
+    def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
+        """Solve the problem at ``x``; return the result with the solver's status."""
+
+    @property
+    def previous_plan(self) -> ControlStep | None:
+        """The last plan applied (optimal or fallback), for warm starts."""
+        return self._plan
+
+    def _fallback(self, x: FloatArray, status: str, info: dict[str, Any]) -> ControlStep:
+        prev = self._plan
+        if prev is None:
+            u_pred = np.tile(self.plant.clip_input(np.zeros(self.plant.nu)), (self.horizon, 1))
+        else:
+            u_pred = shift(prev.u_pred)
+        x_pred = self.plant.rollout(x, u_pred, self.dt)
+        res = ControlStep(
+            u=u_pred[0].copy(), x_pred=x_pred, u_pred=u_pred, status=status,
+            fallback=True, info=info,
+        )
+        self._plan = replace(res)
+        return res
+
+
+def shift(a: FloatArray) -> FloatArray:
+    """Drop the first row of a trajectory and repeat the last one."""
+    return np.concatenate([a[1:], a[-1:]], axis=0)

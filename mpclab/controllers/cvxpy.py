@@ -1,0 +1,190 @@
+"""CVXPY backend: successive-linearization MPC as one DPP-compliant QP built once.
+
+Per step only parameter values change: the initial state, the LTV model ``(A_k, B_k, c_k)``
+along the previous plan shifted by one step, and the target. The problem is compiled once
+(``Problem.is_dpp()`` is checked at construction), so a solve skips canonicalization.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import cvxpy as cp
+import numpy as np
+
+from mpclab.controllers.base import ControlStep, Controller, FloatArray, StepContext, shift
+from mpclab.errors import ConfigError
+from mpclab.objectives.base import Objective
+from mpclab.plants.base import Plant
+from mpclab.registry import component
+
+
+class CvxpySolver(str, Enum):
+    CLARABEL = "CLARABEL"
+    OSQP = "OSQP"
+
+
+class Linearization(str, Enum):
+    #: the previous solution shifted by one step, first point replaced by the measured state
+    shifted_plan = "shifted_plan"
+    #: the previous inputs shifted by one step, states simulated from the measured state
+    rollout = "rollout"
+
+
+@dataclass
+class CvxpyConf:
+    _target_: str = "mpclab.controllers.cvxpy.CvxpyMPC"
+    horizon: int = 10
+    dt: float = 0.1
+    solver: CvxpySolver = CvxpySolver.CLARABEL
+    warm_start: bool = True
+    iterations: int = 1
+    linearize_about: Linearization = Linearization.shifted_plan
+    terminal_constraint: dict[str, float] = field(default_factory=dict)
+    solver_options: dict[str, Any] = field(default_factory=dict)
+
+
+@component("controller", "cvxpy", CvxpyConf)
+class CvxpyMPC(Controller):
+    """Successive-linearization MPC solved as a convex QP with CVXPY.
+
+    Parameters
+    ----------
+    plant, objective
+        Injected; every objective term must support CVXPY.
+    horizon, dt
+        Prediction steps and sample time [s].
+    solver
+        ``CLARABEL`` (default) or ``OSQP``.
+    warm_start
+        Passed to the solver (OSQP reuses its factorization and previous solution).
+    iterations
+        Linearize-and-solve passes per step (1: real-time iteration).
+    linearize_about
+        ``shifted_plan`` or ``rollout``.
+    terminal_constraint
+        ``{state label: value}`` imposed on the last predicted state.
+    solver_options
+        Extra keyword options for the solver.
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        objective: Objective,
+        horizon: int = 10,
+        dt: float = 0.1,
+        solver: CvxpySolver | str = CvxpySolver.CLARABEL,
+        warm_start: bool = True,
+        iterations: int = 1,
+        linearize_about: Linearization | str = Linearization.shifted_plan,
+        terminal_constraint: Mapping[str, float] | None = None,
+        solver_options: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__(plant, horizon, dt)
+        self.solver = CvxpySolver(solver).value
+        self.warm_start = bool(warm_start)
+        if int(iterations) < 1:
+            raise ConfigError(f"controller.iterations must be >= 1, got {iterations}")
+        self.iterations = int(iterations)
+        self.linearize_about = Linearization(linearize_about)
+        self.solver_options = dict(solver_options or {})
+        self.objective = objective
+        objective.bind(plant, "cvxpy")
+        self._build(dict(terminal_constraint or {}))
+
+    def _build(self, terminal: dict[str, float]) -> None:
+        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        self.X = X = cp.Variable((nx, T + 1), name="X")
+        self.U = U = cp.Variable((nu, T), name="U")
+        self.p_x0 = cp.Parameter(nx, name="x0")
+        # one parameter for all A_k (and one for all B_k): fewer parameters, faster updates
+        self.p_A = cp.Parameter((nx, nx * T), name="A")
+        self.p_B = cp.Parameter((nx, nu * T), name="B")
+        self.p_c = cp.Parameter((nx, T), name="c")
+        self.p_target = cp.Parameter((nx, T + 1), name="target")
+        cons = [X[:, 0] == self.p_x0]
+        cons += [
+            X[:, k + 1]
+            == self.p_A[:, k * nx : (k + 1) * nx] @ X[:, k]
+            + self.p_B[:, k * nu : (k + 1) * nu] @ U[:, k]
+            + self.p_c[:, k]
+            for k in range(T)
+        ]
+        cons += _box(U, self.plant.u_lb, self.plant.u_ub)
+        cons += _box(X[:, 1:], self.plant.x_lb, self.plant.x_ub)
+        for label, value in terminal.items():
+            try:
+                i = self.plant.state_index(label)
+            except ValueError as exc:
+                raise ConfigError(f"controller.terminal_constraint: {exc}") from None
+            cons.append(X[i, T] == float(value))
+        params = {"target": self.p_target}
+        cost = sum(term.cvxpy_cost(X, U, params) for term in self.objective)
+        self.problem = cp.Problem(cp.Minimize(cost), cons)
+        if not self.problem.is_dpp():
+            raise ConfigError(
+                "the CVXPY problem is not DPP-compliant, so it would be recompiled every step; "
+                "check that every objective term is affine in its parameters"
+            )
+
+    def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        prev = self.previous_plan
+        if prev is None:
+            U = np.tile(self.plant.clip_input(np.zeros(self.plant.nu)), (self.horizon, 1))
+            return self.plant.rollout(x, U, self.dt)[:-1], U
+        U = shift(prev.u_pred)
+        if self.linearize_about is Linearization.rollout:
+            return self.plant.rollout(x, U, self.dt)[:-1], U
+        X = shift(prev.x_pred)[:-1].copy()
+        X[0] = x
+        return X, U
+
+    def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
+        Xbar, Ubar = self._linearization_points(x)
+        self.p_x0.value = x
+        self.p_target.value = ctx.target.T
+        for _ in range(self.iterations):
+            A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
+            self.p_A.value = A.transpose(1, 0, 2).reshape(self.plant.nx, -1)
+            self.p_B.value = B.transpose(1, 0, 2).reshape(self.plant.nx, -1)
+            self.p_c.value = c.T
+            try:
+                self.problem.solve(
+                    solver=self.solver, warm_start=self.warm_start, **self.solver_options
+                )
+            except cp.error.SolverError as exc:
+                return self._failed("solver_error", x, str(exc))
+            status = str(self.problem.status)
+            if status != cp.OPTIMAL or self.U.value is None:
+                return self._failed(status, x, "")
+            Xbar, Ubar = self.X.value.T[:-1], self.U.value.T
+        return ControlStep(
+            u=self.U.value[:, 0].copy(),
+            x_pred=self.X.value.T.copy(),
+            u_pred=self.U.value.T.copy(),
+            status="optimal",
+            cost=float(self.problem.value),
+        )
+
+    def _failed(self, status: str, x: FloatArray, message: str) -> ControlStep:
+        T, nu = self.horizon, self.plant.nu
+        return ControlStep(
+            u=np.zeros(nu), x_pred=np.tile(x, (T + 1, 1)), u_pred=np.zeros((T, nu)),
+            status=status, info={"error": message} if message else {},
+        )
+
+
+def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint]:
+    """Row-wise bounds on ``V`` for the finite entries of ``lb``/``ub``."""
+    cons = []
+    lo = [i for i in range(len(lb)) if np.isfinite(lb[i])]
+    hi = [i for i in range(len(ub)) if np.isfinite(ub[i])]
+    if lo:
+        cons.append(V[lo, :] >= lb[lo][:, None])
+    if hi:
+        cons.append(V[hi, :] <= ub[hi][:, None])
+    return cons

@@ -1,0 +1,86 @@
+"""From a composed config to a run record: build the objects, close the loop, write files."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from mpclab import record
+from mpclab.instantiate import build
+from mpclab.sim import Run, RunResult, simulate
+
+
+def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
+    """Instantiate plant, objective, controller, scenario, supervisor and recorder."""
+    rng = np.random.default_rng(cfg.seed)
+    plant = build(cfg.plant, "plant")
+    objective = build(cfg.objective, "objective")
+    controller = build(cfg.controller, "controller", plant=plant, objective=objective)
+    scenario = _build_with_optional(cfg.scenario, "scenario", plant=plant, rng=rng)
+    supervisor = build(cfg.supervisor, "supervisor")
+    recorder = _build_with_optional(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
+    return Run(plant, controller, scenario, supervisor, recorder)
+
+
+def _build_with_optional(node: DictConfig, path: str, **deps: Any) -> Any:
+    """Build ``node``, passing only the dependencies its target's signature accepts."""
+    import inspect
+
+    from hydra.utils import get_object
+
+    params = inspect.signature(get_object(node._target_)).parameters
+    return build(node, path, **{k: v for k, v in deps.items() if k in params})
+
+
+def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
+    """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``."""
+    out_dir = Path(out_dir)
+    run = build_run(cfg, out_dir)
+    progress = _ProgressLine(cfg.name) if cfg.progress and sys.stderr.isatty() else None
+    try:
+        result = simulate(run, progress=progress)
+    finally:
+        run.recorder.close()
+        if progress is not None:
+            progress.done()
+    result.summary = {
+        "experiment": cfg.name,
+        "plant": getattr(run.plant, "registered_name", type(run.plant).__name__),
+        "controller": getattr(run.controller, "registered_name", type(run.controller).__name__),
+        "scenario": run.scenario.name,
+        "seed": int(cfg.seed),
+        **result.summary,
+        "versions": record.versions(),
+    }
+    record.write(out_dir, result.steps, result.horizons, result.summary)
+    if cfg.figures.enabled:
+        from mpclab.recording.figures import plot_run
+
+        plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
+    return result
+
+
+class _ProgressLine:
+    """A one-line progress display on stderr for an interactive single run."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self._last = -1
+
+    def __call__(self, t: float, t_max: float) -> None:
+        pct = int(100 * t / t_max)
+        if pct != self._last:
+            self._last = pct
+            sys.stderr.write(f"\r{self.name}: t = {t:6.2f} s of at most {t_max:.1f} s")
+            sys.stderr.flush()
+
+    def done(self) -> None:
+        sys.stderr.write("\n")
+
+
+def resolved_yaml(cfg: DictConfig) -> str:
+    return OmegaConf.to_yaml(cfg, resolve=True)

@@ -1,0 +1,52 @@
+"""The one ``instantiate`` helper: config node -> object, with options checked first.
+
+Hydra's ``instantiate`` reports an unknown keyword only as a ``TypeError`` from deep inside
+the call. :func:`build` walks the node first and, for every ``_target_`` in it, compares the
+given keys with the target's signature, so a typo names the key, its path and the valid ones.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+from hydra.utils import get_object, instantiate
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from mpclab.errors import ConfigError, check_keys
+
+_HYDRA_KEYS = {"_target_", "_convert_", "_recursive_", "_partial_", "_args_"}
+
+
+def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
+    """Raise :class:`ConfigError` if any ``_target_`` below ``node`` gets unknown options."""
+    if isinstance(node, DictConfig):
+        if "_target_" in node:
+            _check_one(node, path, deps)
+        for key, child in node.items_ex(resolve=False):
+            check_targets(child, f"{path}.{key}" if path else str(key))
+    elif isinstance(node, ListConfig):
+        for i, child in enumerate(node):
+            check_targets(child, f"{path}[{i}]")
+
+
+def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
+    target = node["_target_"]
+    try:
+        obj = get_object(target)
+    except Exception as exc:  # ImportError, AttributeError wrapped by Hydra
+        raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc})") from exc
+    sig = inspect.signature(obj)
+    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+        return
+    valid = [n for n in sig.parameters if n not in deps]
+    given = {k: None for k in node if k not in _HYDRA_KEYS}
+    check_keys(given, valid, where=f"{path} ({target})")
+
+
+def build(node: DictConfig, path: str, **deps: Any) -> Any:
+    """Instantiate ``node`` with dependencies ``deps`` after checking every option name."""
+    if node is None or (isinstance(node, DictConfig) and "_target_" not in node):
+        raise ConfigError(f"{path}: no _target_ to instantiate; got {OmegaConf.to_yaml(node)!r}")
+    check_targets(node, path, tuple(deps))
+    return instantiate(node, _convert_="all", **deps)

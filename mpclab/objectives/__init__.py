@@ -1,0 +1,1 @@
+"""Objective terms (J1..J5, quadratic tracking, effort) and their composition."""

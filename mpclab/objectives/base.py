@@ -1,0 +1,84 @@
+"""Objective terms and the objective that composes them.
+
+A term is data (weights, targets) plus a way to express itself for each backend that can
+take it: ``cvxpy_cost`` builds a DPP-compliant CVXPY expression, ``casadi_cost`` a CasADi one.
+A backend asks :meth:`Term.supports`; one that a term does not support refuses at
+construction, naming the term and the backends that accept it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from mpclab.errors import ConfigError
+from mpclab.registry import component
+
+#: backend name -> the Term method that expresses a term for it
+BACKEND_METHODS = {"cvxpy": "cvxpy_cost", "casadi": "casadi_cost"}
+
+
+class Term:
+    """Base class of objective terms. ``name`` is set by the objective from its config key."""
+
+    name: str = ""
+
+    def bind(self, plant: Any) -> None:
+        """Resolve state/input labels against ``plant``; called once by the backend."""
+
+    def cvxpy_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
+        """CVXPY expression over ``X (nx, T+1)``, ``U (nu, T)``; ``p`` holds Parameters."""
+        raise NotImplementedError
+
+    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
+        """CasADi expression over ``X (nx, T+1)``, ``U (nu, T)``; ``p`` holds symbols."""
+        raise NotImplementedError
+
+    @classmethod
+    def backends(cls) -> list[str]:
+        """Backends that can express this term (those whose method it overrides)."""
+        return [
+            b for b, m in BACKEND_METHODS.items() if getattr(cls, m) is not getattr(Term, m)
+        ]
+
+    def require(self, backend: str) -> None:
+        """Raise :class:`ConfigError` unless this term can be expressed for ``backend``."""
+        if backend not in self.backends():
+            raise ConfigError(
+                f"objective term {self.name!r} ({type(self).__name__}) cannot be expressed "
+                f"by the {backend} backend; backends that accept it: "
+                f"{', '.join(self.backends()) or '(none)'}"
+            )
+
+
+@dataclass
+class ObjectiveConf:
+    _target_: str = "mpclab.objectives.base.Objective"
+    terms: dict[str, Any] = field(default_factory=dict)
+
+
+@component("objective", "objective", ObjectiveConf)
+class Objective:
+    """A named set of terms; the cost is their sum (or the sum of the active ones)."""
+
+    def __init__(self, terms: Mapping[str, Term]) -> None:
+        if not terms:
+            raise ConfigError("objective.terms is empty: an objective needs at least one term")
+        self.terms: dict[str, Term] = {}
+        for name, term in terms.items():
+            if not isinstance(term, Term):
+                raise ConfigError(
+                    f"objective.terms.{name} is not an objective term (got "
+                    f"{type(term).__name__}); give it a _target_ naming a Term class"
+                )
+            term.name = name
+            self.terms[name] = term
+
+    def bind(self, plant: Any, backend: str) -> None:
+        for term in self.terms.values():
+            term.require(backend)
+            term.bind(plant)
+
+    def __iter__(self):
+        return iter(self.terms.values())

@@ -1,0 +1,97 @@
+"""Plain quadratic tracking: ``sum_k sum_i w_i (x_i[k] - r_i[k])^2 + sum_k sum_j r_j u_j[k]^2``.
+
+States are weighted over prediction steps ``k = 1..T`` (the initial state is fixed), inputs
+over ``k = 0..T-1``. The reference ``r`` is the backend's ``target`` parameter: the goal
+repeated, or a scenario's reference sampled over the horizon.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import casadi as ca
+import cvxpy as cp
+import numpy as np
+
+from mpclab.errors import ConfigError
+from mpclab.objectives.base import Term
+
+
+class QuadraticTracking(Term):
+    """Quadratic tracking of the target plus quadratic input effort.
+
+    Parameters
+    ----------
+    state_weights
+        ``{state label: weight}`` on ``(x - target)^2`` over steps 1..T.
+    input_weights
+        ``{input label: weight}`` on ``u^2`` over steps 0..T-1.
+    terminal_weights
+        ``{state label: weight}`` added on the last predicted state only.
+    """
+
+    def __init__(
+        self,
+        state_weights: Mapping[str, float] | None = None,
+        input_weights: Mapping[str, float] | None = None,
+        terminal_weights: Mapping[str, float] | None = None,
+    ) -> None:
+        self.state_weights = dict(state_weights or {})
+        self.input_weights = dict(input_weights or {})
+        self.terminal_weights = dict(terminal_weights or {})
+        for what, weights in (
+            ("state_weights", self.state_weights),
+            ("input_weights", self.input_weights),
+            ("terminal_weights", self.terminal_weights),
+        ):
+            for label, w in weights.items():
+                if float(w) < 0:
+                    raise ConfigError(f"{what}.{label} must be >= 0, got {w}")
+
+    def bind(self, plant: Any) -> None:
+        def split(weights: dict[str, float], index: Any) -> tuple[list[int], np.ndarray]:
+            try:
+                idx = [index(label) for label in weights]
+            except ValueError as exc:
+                raise ConfigError(f"objective term {self.name!r}: {exc}") from None
+            return idx, np.sqrt(np.array([float(w) for w in weights.values()]))
+
+        self._qi, self._q = split(self.state_weights, plant.state_index)
+        self._ri, self._r = split(self.input_weights, plant.input_index)
+        self._ti, self._t = split(self.terminal_weights, plant.state_index)
+
+    def cvxpy_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
+        cost = 0
+        target = p["target"]
+        if self._qi:
+            err = X[self._qi, 1:] - target[self._qi, 1:]
+            cost += cp.sum_squares(cp.multiply(self._q[:, None], err))
+        if self._ri:
+            cost += cp.sum_squares(cp.multiply(self._r[:, None], U[self._ri, :]))
+        if self._ti:
+            cost += cp.sum_squares(cp.multiply(self._t, X[self._ti, -1] - target[self._ti, -1]))
+        return cost
+
+    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
+        cost = 0
+        target = p["target"]
+        if self._qi:
+            err = X[self._qi, 1:] - target[self._qi, 1:]
+            cost += ca.sumsqr(ca.diag(self._q) @ err)
+        if self._ri:
+            cost += ca.sumsqr(ca.diag(self._r) @ U[self._ri, :])
+        if self._ti:
+            cost += ca.sumsqr(ca.diag(self._t) @ (X[self._ti, -1] - target[self._ti, -1]))
+        return cost
+
+    def value(self, X: np.ndarray, U: np.ndarray, target: np.ndarray) -> float:
+        """The cost of a horizon given as arrays ``X (T+1, nx)``, ``U (T, nu)``."""
+        cost = 0.0
+        if self._qi:
+            cost += float(np.sum((self._q * (X[1:, self._qi] - target[1:, self._qi])) ** 2))
+        if self._ri:
+            cost += float(np.sum((self._r * U[:, self._ri]) ** 2))
+        if self._ti:
+            cost += float(np.sum((self._t * (X[-1, self._ti] - target[-1, self._ti])) ** 2))
+        return cost

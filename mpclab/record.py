@@ -1,0 +1,78 @@
+"""The run record: what every run writes into its folder, and how to read it back.
+
+``steps.parquet`` (one row per controller call plus the final state), ``horizons.parquet``
+(every predicted horizon, long format: ``step``, ``k``, ``t``, states, inputs) and
+``summary.json``. Hydra adds ``.hydra/config.yaml``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+STEPS = "steps.parquet"
+HORIZONS = "horizons.parquet"
+SUMMARY = "summary.json"
+
+#: columns of steps.parquet whose values depend on wall-clock timing
+TIMING_COLUMNS = ("solve_time_s",)
+
+_VERSIONED = (
+    "mpclab", "numpy", "scipy", "pandas", "casadi", "cvxpy", "clarabel", "osqp",
+    "hydra-core", "rerun-sdk",
+)
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the packages a run's numbers depend on."""
+    import platform
+
+    out = {"python": platform.python_version()}
+    for name in _VERSIONED:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def write(out_dir: Path, steps: pd.DataFrame, horizons: pd.DataFrame, summary: dict[str, Any]) -> None:
+    """Write the three files of a run record into ``out_dir`` (created if needed)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    steps.to_parquet(out_dir / STEPS, index=False)
+    horizons.to_parquet(out_dir / HORIZONS, index=False)
+    # summary last: its presence marks a complete record
+    tmp = out_dir / (SUMMARY + ".tmp")
+    tmp.write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
+    tmp.replace(out_dir / SUMMARY)
+
+
+def read_summary(run_dir: Path) -> dict[str, Any]:
+    return json.loads((Path(run_dir) / SUMMARY).read_text())
+
+
+def read_steps(run_dir: Path) -> pd.DataFrame:
+    return pd.read_parquet(Path(run_dir) / STEPS)
+
+
+def read_horizons(run_dir: Path) -> pd.DataFrame:
+    return pd.read_parquet(Path(run_dir) / HORIZONS)
+
+
+def _jsonable(value: Any) -> Any:
+    """NaN/inf become null so summary.json is strict JSON."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if hasattr(value, "item"):  # numpy scalars
+        return _jsonable(value.item())
+    return value

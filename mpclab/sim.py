@@ -1,0 +1,201 @@
+"""The closed loop: sense -> supervise -> control -> integrate -> log.
+
+:func:`simulate` is the only place where simulated time advances. It times only the
+controller call, stops on arrival, collision, stall, time-out or error, and returns the step
+log as tidy tables plus the summary every run record holds.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from mpclab.controllers.base import ControlStep, Controller, StepContext
+from mpclab.plants.base import Plant
+from mpclab.recording.base import Recorder
+from mpclab.supervisors.base import NoSupervisor, Supervisor
+from mpclab.world.scenario import Scenario
+
+#: run statuses, in the run record's ``status`` field
+STATUSES = ("arrived", "stalled", "timeout", "collision", "error")
+
+
+@dataclass
+class Run:
+    """The objects one closed-loop run is made of (built from config by ``experiment``)."""
+
+    plant: Plant
+    controller: Controller
+    scenario: Scenario
+    supervisor: Supervisor = field(default_factory=NoSupervisor)
+    recorder: Recorder = field(default_factory=Recorder)
+
+
+@dataclass
+class RunResult:
+    steps: pd.DataFrame
+    horizons: pd.DataFrame
+    summary: dict[str, Any]
+
+
+def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -> RunResult:
+    """Run the closed loop until arrival, collision, stall, time-out or error.
+
+    Parameters
+    ----------
+    run
+        Plant, controller, scenario, supervisor and recorder.
+    progress
+        Called as ``progress(t, t_max)`` after every step (for a progress bar).
+    """
+    plant, ctrl, scen, sup, rec = (
+        run.plant, run.controller, run.scenario, run.supervisor, run.recorder
+    )
+    dt, H = ctrl.dt, ctrl.horizon
+    x = scen.x0.copy()
+    ctrl.reset(x)
+    sup.reset(x, scen.goal)
+    log = _StepLog(plant, H)
+    status, error, k = "error", None, 0
+    n_max = int(np.floor(scen.t_max / dt + 1e-9))
+    rec.start(run)
+    try:
+        while True:
+            t = k * dt
+            if scen.arrived(x):
+                status = "arrived"
+                break
+            if scen.collided(x):
+                status = "collision"
+                break
+            if scen.stalled(log.t, log.xs):
+                status = "stalled"
+                break
+            if k >= n_max:
+                status = "timeout"
+                break
+            detections = scen.detect(x)
+            mode, active = sup.update(t, x, detections)
+            ctx = StepContext(
+                goal=scen.goal, target=scen.target(t, H, dt), detections=detections,
+                active=active, mode=mode,
+            )
+            t0 = time.perf_counter()
+            cs = ctrl.step(t, x, ctx)
+            solve_time = time.perf_counter() - t0
+            log.add(t, x, cs, solve_time, mode, scen.clearance(x))
+            rec.log_step(k, t, x, cs, ctx)
+            x = plant.step(x, cs.u, dt)
+            if not np.all(np.isfinite(x)):
+                raise FloatingPointError(f"state became non-finite at t={t + dt:.3f}: {x}")
+            k += 1
+            if progress is not None:
+                progress(k * dt, scen.t_max)
+    except Exception as exc:  # the record is still written, with the error in it
+        status, error = "error", f"{type(exc).__name__}: {exc}"
+    t_end = k * dt
+    log.final(t_end, x, scen.clearance(x))
+    steps, horizons = log.tables()
+    summary = _summary(steps, status, error, t_end, scen)
+    rec.finish(x, t_end, summary)
+    return RunResult(steps, horizons, summary)
+
+
+class _StepLog:
+    """Accumulates one row per controller call (plus the final state) and every horizon."""
+
+    def __init__(self, plant: Plant, horizon: int) -> None:
+        self.plant = plant
+        self.horizon = horizon
+        self.t: list[float] = []
+        self.xs: list[np.ndarray] = []
+        self.us: list[np.ndarray] = []
+        self.meta: list[tuple[float, str, bool, str, float, float]] = []
+        self.x_pred: list[np.ndarray] = []
+        self.u_pred: list[np.ndarray] = []
+
+    def add(
+        self, t: float, x: np.ndarray, cs: ControlStep, solve_time: float, mode: str,
+        clearance: float,
+    ) -> None:
+        self.t.append(t)
+        self.xs.append(x.copy())
+        self.us.append(np.asarray(cs.u, dtype=float).copy())
+        self.meta.append((solve_time, cs.status, cs.fallback, mode, cs.cost, clearance))
+        self.x_pred.append(np.asarray(cs.x_pred, dtype=float))
+        self.u_pred.append(np.asarray(cs.u_pred, dtype=float))
+
+    def final(self, t: float, x: np.ndarray, clearance: float) -> None:
+        self.t.append(t)
+        self.xs.append(x.copy())
+        self.us.append(np.full(self.plant.nu, np.nan))
+        self.meta.append((np.nan, "final", False, "", np.nan, clearance))
+
+    def tables(self) -> tuple[pd.DataFrame, pd.DataFrame]:
+        p = self.plant
+        n = len(self.t)
+        steps = pd.DataFrame({"step": np.arange(n), "t": np.asarray(self.t)})
+        xs, us = np.asarray(self.xs), np.asarray(self.us)
+        for i, label in enumerate(p.states):
+            steps[label] = xs[:, i]
+        for j, label in enumerate(p.inputs):
+            steps[label] = us[:, j]
+        solve, status, fallback, mode, cost, clearance = zip(*self.meta, strict=True)
+        steps["solve_time_s"] = np.asarray(solve, dtype=float)
+        steps["status"] = pd.Series(status, dtype="string")
+        steps["fallback"] = np.asarray(fallback, dtype=bool)
+        steps["mode"] = pd.Series(mode, dtype="string")
+        steps["cost"] = np.asarray(cost, dtype=float)
+        steps["clearance_m"] = np.asarray(clearance, dtype=float)
+        return steps, self._horizons()
+
+    def _horizons(self) -> pd.DataFrame:
+        p, H = self.plant, self.horizon
+        m = len(self.x_pred)
+        if m == 0:
+            cols = ["step", "k", "t"] + list(p.states) + list(p.inputs)
+            return pd.DataFrame({c: pd.Series(dtype=float) for c in cols})
+        X = np.stack(self.x_pred)  # (m, H+1, nx)
+        U = np.concatenate([np.stack(self.u_pred), np.full((m, 1, p.nu), np.nan)], axis=1)
+        dt = self.t[1] - self.t[0] if len(self.t) > 1 else 0.0
+        step = np.repeat(np.arange(m), H + 1)
+        k = np.tile(np.arange(H + 1), m)
+        hz = pd.DataFrame({"step": step, "k": k, "t": np.asarray(self.t[:m])[step] + k * dt})
+        for i, label in enumerate(p.states):
+            hz[label] = X[:, :, i].ravel()
+        for j, label in enumerate(p.inputs):
+            hz[label] = U[:, :, j].ravel()
+        return hz
+
+
+def _summary(
+    steps: pd.DataFrame, status: str, error: str | None, t_end: float, scen: Scenario
+) -> dict[str, Any]:
+    calls = steps[steps["status"] != "final"]
+    solve = calls["solve_time_s"].to_numpy()
+    total = float(solve.sum())
+    ms = solve * 1e3
+    clearance = steps["clearance_m"].to_numpy()
+    failures = int((~calls["status"].isin(["optimal"])).sum())
+    return {
+        "status": status,
+        "arrived": status == "arrived",
+        "arrival_time_s": round(t_end, 9) if status == "arrived" else None,
+        "n_steps": int(len(calls)),
+        "sim_time_s": round(t_end, 9),
+        "compute_total_s": total,
+        "compute_median_ms": float(np.median(ms)) if len(ms) else None,
+        "compute_p95_ms": float(np.percentile(ms, 95)) if len(ms) else None,
+        "compute_max_ms": float(ms.max()) if len(ms) else None,
+        "rtf": total / t_end if t_end > 0 else None,
+        "min_clearance_m": float(np.nanmin(clearance)) if np.isfinite(clearance).any() else None,
+        "solver_failures": failures,
+        "final_state": dict(zip(scen.plant.states, steps.iloc[-1][list(scen.plant.states)]
+                                .astype(float), strict=True)),
+        "error": error,
+    }

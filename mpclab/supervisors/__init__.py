@@ -1,0 +1,1 @@
+"""Objective-set switching (e.g. BUG2)."""

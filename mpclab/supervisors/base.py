@@ -1,0 +1,35 @@
+"""Supervisors pick the active objective terms each step; ``none`` keeps them all on."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from mpclab.registry import component
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class Supervisor:
+    """Base class: chooses a mode and the objective terms active in it."""
+
+    def reset(self, x0: FloatArray, goal: FloatArray) -> None:
+        """Start a new run."""
+
+    def update(
+        self, t: float, x: FloatArray, detections: FloatArray
+    ) -> tuple[str, frozenset[str] | None]:
+        """Return ``(mode, active term names)``; ``None`` means every term."""
+        return "", None
+
+
+@dataclass
+class NoSupervisorConf:
+    _target_: str = "mpclab.supervisors.base.NoSupervisor"
+
+
+@component("supervisor", "none", NoSupervisorConf)
+class NoSupervisor(Supervisor):
+    """Every objective term is always active."""

@@ -1,0 +1,113 @@
+"""Scenarios: start, goal, stop rules and time limit, resolved against a plant's labels."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mpclab.errors import ConfigError
+from mpclab.plants.base import Plant
+from mpclab.registry import component
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass
+class ArrivalConf:
+    """Arrived when ``sum_i w_i (x_i - goal_i)^2 < threshold``."""
+
+    weights: dict[str, float] = field(default_factory=dict)
+    threshold: float = 1.0
+
+
+@dataclass
+class ScenarioConf:
+    _target_: str = "mpclab.world.scenario.Scenario"
+    name: str = "???"
+    start: dict[str, float] = field(default_factory=dict)
+    goal: dict[str, float] = field(default_factory=dict)
+    arrival: ArrivalConf = field(default_factory=ArrivalConf)
+    t_max: float = 30.0
+
+
+@component("scenario", "scenario", ScenarioConf)
+class Scenario:
+    """Start and goal states, the arrival rule and the time limit.
+
+    Parameters
+    ----------
+    plant
+        Injected; labels in ``start``, ``goal`` and ``arrival.weights`` are its state labels.
+    name
+        Scenario name, written into the run record.
+    start, goal
+        ``{state label: value}``; labels not given are 0.
+    arrival
+        ``{"weights": {label: w}, "threshold": eps}``: arrived when the weighted squared
+        distance to the goal is below ``eps``.
+    t_max
+        Simulated time limit [s]; reaching it ends the run with ``status: timeout``.
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        name: str,
+        start: Mapping[str, float],
+        goal: Mapping[str, float],
+        arrival: Mapping[str, Any],
+        t_max: float = 30.0,
+    ) -> None:
+        self.plant = plant
+        self.name = name
+        self.x0 = self._vector(start, "scenario.start")
+        self.goal = self._vector(goal, "scenario.goal")
+        weights = dict(arrival.get("weights", {}))
+        if not weights:
+            raise ConfigError("scenario.arrival.weights is empty: no state decides arrival")
+        self._arrival_w = self._vector(weights, "scenario.arrival.weights")
+        self.arrival_threshold = float(arrival.get("threshold", 1.0))
+        if float(t_max) <= 0:
+            raise ConfigError(f"scenario.t_max must be > 0, got {t_max}")
+        self.t_max = float(t_max)
+
+    def _vector(self, values: Mapping[str, float], where: str) -> FloatArray:
+        v = np.zeros(self.plant.nx)
+        for label, value in values.items():
+            try:
+                v[self.plant.state_index(label)] = float(value)
+            except ValueError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+        return v
+
+    def arrival_distance(self, x: FloatArray) -> float:
+        """The weighted squared distance the arrival rule compares with the threshold."""
+        return float(np.sum(self._arrival_w * (x - self.goal) ** 2))
+
+    def arrived(self, x: FloatArray) -> bool:
+        return self.arrival_distance(x) < self.arrival_threshold
+
+    def target(self, t: float, horizon: int, dt: float) -> FloatArray:
+        """Reference over the horizon ``(horizon+1, nx)``: here the goal held."""
+        return np.tile(self.goal, (horizon + 1, 1))
+
+    # The world hooks the loop calls each step; a scenario without obstacles or stall rule
+    # sees nothing, never collides and never stalls.
+    def detect(self, x: FloatArray) -> FloatArray:
+        """Detected obstacle points ``(n, 2)`` seen from state ``x``."""
+        return np.zeros((0, 2))
+
+    def collided(self, x: FloatArray) -> bool:
+        return False
+
+    def clearance(self, x: FloatArray) -> float:
+        """Distance from the vehicle's boundary to the nearest obstacle [m] (NaN: none)."""
+        return float("nan")
+
+    def stalled(self, t: list[float], xs: list[FloatArray]) -> bool:
+        """Whether the run so far (times and states before this step) has stalled."""
+        return False
