@@ -54,6 +54,8 @@ def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
         "scenario": run.scenario.name,
         "seed": int(cfg.seed),
         **result.summary,
+        **run.scenario.metrics(result.steps),
+        **run.controller.metrics(result.steps),
         "versions": record.versions(),
     }
     record.write(out_dir, result.steps, result.horizons, result.summary)

@@ -60,7 +60,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     x = scen.x0.copy()
     ctrl.reset(x)
     sup.reset(x, scen.goal)
-    log = _StepLog(plant, H)
+    log = _StepLog(plant, H, ctrl.log_columns)
     status, error, k = "error", None, 0
     n_max = int(np.floor(scen.t_max / dt + 1e-9))
     rec.start(run)
@@ -109,9 +109,10 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
 class _StepLog:
     """Accumulates one row per controller call (plus the final state) and every horizon."""
 
-    def __init__(self, plant: Plant, horizon: int) -> None:
+    def __init__(self, plant: Plant, horizon: int, extra: tuple[str, ...] = ()) -> None:
         self.plant = plant
         self.horizon = horizon
+        self.extra: dict[str, list[Any]] = {key: [] for key in extra}
         self.t: list[float] = []
         self.xs: list[np.ndarray] = []
         self.us: list[np.ndarray] = []
@@ -129,12 +130,16 @@ class _StepLog:
         self.meta.append((solve_time, cs.status, cs.fallback, mode, cs.cost, clearance))
         self.x_pred.append(np.asarray(cs.x_pred, dtype=float))
         self.u_pred.append(np.asarray(cs.u_pred, dtype=float))
+        for key, values in self.extra.items():
+            values.append(cs.info.get(key))
 
     def final(self, t: float, x: np.ndarray, clearance: float) -> None:
         self.t.append(t)
         self.xs.append(x.copy())
         self.us.append(np.full(self.plant.nu, np.nan))
         self.meta.append((np.nan, "final", False, "", np.nan, clearance))
+        for values in self.extra.values():
+            values.append(None)
 
     def tables(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         p = self.plant
@@ -152,6 +157,8 @@ class _StepLog:
         steps["mode"] = pd.Series(mode, dtype="string")
         steps["cost"] = np.asarray(cost, dtype=float)
         steps["clearance_m"] = np.asarray(clearance, dtype=float)
+        for key, values in self.extra.items():
+            steps[key] = pd.Series(values)
         return steps, self._horizons()
 
     def _horizons(self) -> pd.DataFrame:

@@ -76,6 +76,8 @@ class Controller(ABC):
 
     #: registered backend name (set by the registry decorator)
     registered_name: str = ""
+    #: keys of ``ControlStep.info`` the runner writes as extra columns of steps.parquet
+    log_columns: tuple[str, ...] = ()
 
     def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
         if int(horizon) < 1:
@@ -108,6 +110,10 @@ class Controller(ABC):
             self._plan = res
             return res
         return self._fallback(x, res.status, res.info)
+
+    def metrics(self, steps: Any) -> dict[str, Any]:
+        """Backend-specific figures for ``summary.json`` computed from the step log."""
+        return {}
 
     @abstractmethod
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:

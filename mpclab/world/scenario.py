@@ -95,6 +95,13 @@ class Scenario:
         """Reference over the horizon ``(horizon+1, nx)``: here the goal held."""
         return np.tile(self.goal, (horizon + 1, 1))
 
+    #: obstacle discs ``(n, 3)``: centre x, centre y, radius [m] (none here)
+    obstacles: FloatArray = np.zeros((0, 3))
+
+    def metrics(self, steps: Any) -> dict[str, Any]:
+        """Scenario-specific figures for ``summary.json`` computed from the step log."""
+        return {}
+
     # The world hooks the loop calls each step; a scenario without obstacles or stall rule
     # sees nothing, never collides and never stalls.
     def detect(self, x: FloatArray) -> FloatArray:
