@@ -1,0 +1,41 @@
+"""Shared fixtures: compose configs exactly as the app does, and run them into tmp folders."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+
+from mpclab.registry import register_all
+
+ROOT = Path(__file__).resolve().parent.parent
+CONF = ROOT / "conf"
+
+register_all()
+
+
+def compose_cfg(overrides: Sequence[str] = ()) -> DictConfig:
+    """Compose ``conf/config.yaml`` with ``overrides`` (as on the command line)."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+@pytest.fixture
+def run_cfg(tmp_path: Path) -> Callable[..., tuple[object, Path]]:
+    """``run_cfg(overrides, name="run")`` -> (RunResult, run folder).
+
+    No figures, no recorder and no progress line unless the overrides ask for them
+    (later overrides win: pass ``recorder=rerun`` to record).
+    """
+    from mpclab.experiment import run_experiment
+
+    def _run(overrides: Sequence[str], name: str = "run", figures: bool = False):
+        base = ["recorder=none", "progress=false", f"figures.enabled={str(figures).lower()}"]
+        cfg = compose_cfg([*base, *overrides])
+        out = tmp_path / name
+        return run_experiment(cfg, out), out
+
+    return _run
