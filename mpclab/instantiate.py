@@ -10,6 +10,7 @@ from __future__ import annotations
 import inspect
 from typing import Any
 
+from hydra.errors import InstantiationException
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
@@ -49,4 +50,10 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
     if node is None or (isinstance(node, DictConfig) and "_target_" not in node):
         raise ConfigError(f"{path}: no _target_ to instantiate; got {OmegaConf.to_yaml(node)!r}")
     check_targets(node, path, tuple(deps))
-    return instantiate(node, _convert_="all", **deps)
+    try:
+        return instantiate(node, _convert_="all", **deps)
+    except InstantiationException as exc:
+        # our own errors already say what was wrong and where: show them, not Hydra's wrapper
+        if isinstance(exc.__cause__, ConfigError):
+            raise exc.__cause__ from None
+        raise

@@ -41,7 +41,9 @@ def versions() -> dict[str, str]:
     return out
 
 
-def write(out_dir: Path, steps: pd.DataFrame, horizons: pd.DataFrame, summary: dict[str, Any]) -> None:
+def write(
+    out_dir: Path, steps: pd.DataFrame, horizons: pd.DataFrame, summary: dict[str, Any]
+) -> None:
     """Write the three files of a run record into ``out_dir`` (created if needed)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

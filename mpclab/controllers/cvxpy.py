@@ -9,25 +9,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import cvxpy as cp
 import numpy as np
 
-from mpclab.controllers.base import ControlStep, Controller, FloatArray, StepContext, shift
+from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext, shift
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 
 
-class CvxpySolver(str, Enum):
+class CvxpySolver(StrEnum):
     CLARABEL = "CLARABEL"
     OSQP = "OSQP"
 
 
-class Linearization(str, Enum):
+class Linearization(StrEnum):
     #: the previous solution shifted by one step, first point replaced by the measured state
     shifted_plan = "shifted_plan"
     #: the previous inputs shifted by one step, states simulated from the measured state

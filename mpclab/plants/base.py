@@ -113,7 +113,9 @@ class Plant:
         """One RK4 step of length ``dt`` from ``x`` with ``u`` held."""
         return np.asarray(self.F(x, u, dt), dtype=float).reshape(self.nx)
 
-    def jacobians(self, x: npt.ArrayLike, u: npt.ArrayLike, dt: float) -> tuple[FloatArray, FloatArray]:
+    def jacobians(
+        self, x: npt.ArrayLike, u: npt.ArrayLike, dt: float
+    ) -> tuple[FloatArray, FloatArray]:
         """``(dF/dx, dF/du)`` of the discrete step, shapes ``(nx, nx)`` and ``(nx, nu)``."""
         A, B = self.F_jac(x, u, dt)
         return np.asarray(A, dtype=float), np.asarray(B, dtype=float)

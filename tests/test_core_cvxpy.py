@@ -1,0 +1,139 @@
+"""The CVXPY backend: built once, DPP, the right QP, and failures survived."""
+
+from __future__ import annotations
+
+import cvxpy as cp
+import numpy as np
+import pytest
+
+from mpclab.controllers.base import StepContext
+from mpclab.controllers.cvxpy import CvxpyMPC
+from mpclab.errors import ConfigError
+from mpclab.objectives.base import Objective, Term
+from mpclab.objectives.quadratic import QuadraticTracking
+from mpclab.plants.kinematic_car import KinematicCar
+
+X0 = np.array([-10.0, 10.0, 0.0, 0.0, 0.0])
+
+
+def make(**options):
+    car = KinematicCar(
+        input_bounds={"a": [-10, 10], "phi_dot": [-3, 3]},
+        state_bounds={"phi": [-np.pi / 4, np.pi / 4]},
+    )
+    obj = Objective(
+        {"tracking": QuadraticTracking({"px": 100, "py": 100}, {"a": 0.01, "phi_dot": 0.01})}
+    )
+    return car, CvxpyMPC(car, obj, terminal_constraint={"v": 0.0}, **options)
+
+
+def ctx(T: int = 10) -> StepContext:
+    return StepContext(goal=np.zeros(5), target=np.zeros((T + 1, 5)))
+
+
+def reference_qp(car: KinematicCar, x0: np.ndarray, Xbar, Ubar, T: int = 10, dt: float = 0.1):
+    """Study A's QP written out with constants and solved by OSQP (not the backend's solver)."""
+    X, U = cp.Variable((5, T + 1)), cp.Variable((2, T))
+    cost, cons = 0, [X[:, 0] == x0, X[3, T] == 0]
+    for k in range(T):
+        A, B, c = car.linearize(Xbar[k], Ubar[k], dt)
+        cost += 100 * cp.sum_squares(X[0:2, k + 1]) + 0.01 * cp.sum_squares(U[:, k])
+        cons += [
+            X[:, k + 1] == A @ X[:, k] + B @ U[:, k] + c,
+            cp.abs(U[0, k]) <= 10, cp.abs(U[1, k]) <= 3, cp.abs(X[4, k + 1]) <= np.pi / 4,
+        ]
+    prob = cp.Problem(cp.Minimize(cost), cons)
+    prob.solve(solver="OSQP", eps_abs=1e-10, eps_rel=1e-10, max_iter=200000, polishing=True)
+    return U.value.T, prob.value
+
+
+def test_problem_is_dpp_and_built_once() -> None:
+    _, ctrl = make()
+    assert ctrl.problem.is_dpp()
+    problem = ctrl.problem
+    ctrl.reset(X0)
+    for k in range(3):
+        ctrl.step(0.1 * k, X0, ctx())
+    assert ctrl.problem is problem  # only parameter values change between steps
+
+
+def test_first_step_matches_reference_qp() -> None:
+    car, ctrl = make()
+    ctrl.reset(X0)
+    res = ctrl.step(0.0, X0, ctx())
+    assert res.ok and not res.fallback
+    Ubar = np.zeros((10, 2))
+    Xbar = car.rollout(X0, Ubar, 0.1)[:-1]
+    U_ref, cost_ref = reference_qp(car, X0, Xbar, Ubar)
+    np.testing.assert_allclose(res.u_pred, U_ref, atol=1e-4)
+    assert res.cost == pytest.approx(cost_ref, rel=1e-6)
+
+
+def test_second_step_linearizes_about_the_shifted_plan() -> None:
+    car, ctrl = make()
+    ctrl.reset(X0)
+    first = ctrl.step(0.0, X0, ctx())
+    x1 = car.step(X0, first.u, 0.1)
+    second = ctrl.step(0.1, x1, ctx())
+    Ubar = np.concatenate([first.u_pred[1:], first.u_pred[-1:]])
+    Xbar = np.concatenate([first.x_pred[1:], first.x_pred[-1:]])[:-1]
+    Xbar[0] = x1
+    U_ref, cost_ref = reference_qp(car, x1, Xbar, Ubar)
+    # the last steering rates barely move the cost (~1e4): compare the applied input tightly,
+    # the rest of the plan to the accuracy the solvers' tolerances allow
+    np.testing.assert_allclose(second.u, U_ref[0], atol=1e-4)
+    np.testing.assert_allclose(second.u_pred, U_ref, atol=1e-2)
+    assert second.cost == pytest.approx(cost_ref, rel=1e-6)
+
+
+def test_osqp_and_clarabel_agree() -> None:
+    _, c1 = make(solver="CLARABEL")
+    _, c2 = make(solver="OSQP", solver_options={"eps_abs": 1e-9, "eps_rel": 1e-9})
+    r1, r2 = c1.step(0.0, X0, ctx()), c2.step(0.0, X0, ctx())
+    np.testing.assert_allclose(r1.u, r2.u, atol=1e-4)
+
+
+def test_solver_exception_falls_back_to_shifted_plan(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, ctrl = make()
+    first = ctrl.step(0.0, X0, ctx())
+
+    def broken(*args, **kwargs):
+        raise cp.error.SolverError("injected failure")
+
+    monkeypatch.setattr(ctrl.problem, "solve", broken)
+    res = ctrl.step(0.1, X0, ctx())
+    assert res.status == "solver_error" and res.fallback and not res.ok
+    np.testing.assert_array_equal(res.u, first.u_pred[1])
+    np.testing.assert_array_equal(res.u_pred[:-1], first.u_pred[1:])
+    again = ctrl.step(0.2, X0, ctx())  # a second failure shifts the fallback plan again
+    np.testing.assert_array_equal(again.u, first.u_pred[2])
+
+
+def test_failure_with_no_plan_gives_zero_input(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, ctrl = make()
+
+    def infeasible(*args, **kwargs):
+        ctrl.problem._status = cp.INFEASIBLE  # what a solver reports for an infeasible QP
+        return np.inf
+
+    monkeypatch.setattr(ctrl.problem, "solve", infeasible)
+    res = ctrl.step(0.0, X0, ctx())
+    assert res.status == "infeasible" and res.fallback
+    np.testing.assert_array_equal(res.u, np.zeros(2))
+
+
+def test_nonconvex_term_is_refused_by_name() -> None:
+    class OnlyCasadi(Term):
+        def casadi_cost(self, X, U, p):
+            return 0
+
+    car = KinematicCar()
+    with pytest.raises(ConfigError, match=r"term 'bump' \(OnlyCasadi\).*cvxpy.*accept it: casadi"):
+        CvxpyMPC(car, Objective({"bump": OnlyCasadi()}))
+
+
+def test_unknown_terminal_label_is_named() -> None:
+    car = KinematicCar()
+    obj = Objective({"t": QuadraticTracking({"px": 1.0})})
+    with pytest.raises(ConfigError, match="terminal_constraint: unknown state label 'vel'"):
+        CvxpyMPC(car, obj, terminal_constraint={"vel": 0.0})
