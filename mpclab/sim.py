@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.controllers.base import ControlStep, Controller, StepContext
+from mpclab.controllers.base import Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.supervisors.base import NoSupervisor, Supervisor
