@@ -88,6 +88,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             t0 = time.perf_counter()
             cs = ctrl.step(t, x, ctx)
             solve_time = time.perf_counter() - t0
+            cs.info["solve_time_s"] = solve_time  # recorders see it with the step
             log.add(t, x, cs, solve_time, mode, scen.clearance(x))
             rec.log_step(k, t, x, cs, ctx)
             x = plant.step(x, cs.u, dt)
