@@ -50,9 +50,14 @@ def write(
     steps.to_parquet(out_dir / STEPS, index=False)
     horizons.to_parquet(out_dir / HORIZONS, index=False)
     # summary last: its presence marks a complete record
-    tmp = out_dir / (SUMMARY + ".tmp")
+    write_summary(out_dir, summary)
+
+
+def write_summary(out_dir: Path, summary: dict[str, Any]) -> None:
+    """Write ``summary.json`` atomically (a reader never sees half a file)."""
+    tmp = Path(out_dir) / (SUMMARY + ".tmp")
     tmp.write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
-    tmp.replace(out_dir / SUMMARY)
+    tmp.replace(Path(out_dir) / SUMMARY)
 
 
 def read_summary(run_dir: Path) -> dict[str, Any]:
