@@ -101,17 +101,17 @@ class CvxpyMPC(Controller):
         self.X = X = cp.Variable((nx, T + 1), name="X")
         self.U = U = cp.Variable((nu, T), name="U")
         self.p_x0 = cp.Parameter(nx, name="x0")
-        # one parameter for all A_k (and one for all B_k): fewer parameters, faster updates
-        self.p_A = cp.Parameter((nx, nx * T), name="A")
-        self.p_B = cp.Parameter((nx, nu * T), name="B")
-        self.p_c = cp.Parameter((nx, T), name="c")
+        # the whole LTV model in one parameter, columns [A_0..A_T-1 | B_0..B_T-1 | c_0..c_T-1]:
+        # one value update per step instead of 2T+1 (each update is validated by CVXPY)
+        self.p_model = M = cp.Parameter((nx, T * (nx + nu + 1)), name="model")
+        a0, c0 = T * nx, T * (nx + nu)
         self.p_target = cp.Parameter((nx, T + 1), name="target")
         cons = [X[:, 0] == self.p_x0]
         cons += [
             X[:, k + 1]
-            == self.p_A[:, k * nx : (k + 1) * nx] @ X[:, k]
-            + self.p_B[:, k * nu : (k + 1) * nu] @ U[:, k]
-            + self.p_c[:, k]
+            == M[:, k * nx : (k + 1) * nx] @ X[:, k]
+            + M[:, a0 + k * nu : a0 + (k + 1) * nu] @ U[:, k]
+            + M[:, c0 + k]
             for k in range(T)
         ]
         cons += _box(U, self.plant.u_lb, self.plant.u_ub)
@@ -130,6 +130,10 @@ class CvxpyMPC(Controller):
                 "the CVXPY problem is not DPP-compliant, so it would be recompiled every step; "
                 "check that every objective term is affine in its parameters"
             )
+        # compile now (canonicalization, the parameter-to-data map), not in the first step
+        for param in self.problem.parameters():
+            param.value = np.zeros(param.shape)
+        self.problem.get_problem_data(self.solver)
 
     def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         prev = self.previous_plan
@@ -149,9 +153,11 @@ class CvxpyMPC(Controller):
         self.p_target.value = ctx.target.T
         for _ in range(self.iterations):
             A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
-            self.p_A.value = A.transpose(1, 0, 2).reshape(self.plant.nx, -1)
-            self.p_B.value = B.transpose(1, 0, 2).reshape(self.plant.nx, -1)
-            self.p_c.value = c.T
+            nx = self.plant.nx
+            self.p_model.value = np.concatenate(
+                [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
+                axis=1,
+            )
             try:
                 self.problem.solve(
                     solver=self.solver, warm_start=self.warm_start, **self.solver_options
