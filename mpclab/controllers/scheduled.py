@@ -1,0 +1,336 @@
+"""Gain-scheduled multiple linear MPC (Study C): one condensed QP per operating point.
+
+At every operating point of the grid (the study: heading x speed, other states and inputs at
+their nominal values) the plant's own discrete step is linearized **with its affine offset**,
+``x+ = A x + B u + c``, and the MPC's condensed QP is precomputed: the Hessian ``H`` and the
+maps that give the gradient from the state and the previewed reference (see
+:mod:`mpclab.controllers.qp_dense`). Per step only ``g = Kx x + kc - Kr ref`` is formed and
+the QP solved; with two inputs and control horizon 1 that is the exact closed form
+:func:`~mpclab.controllers.qp_dense.box_qp_2`.
+
+Scheduling ``mode``:
+
+* ``switched``: the nearest operating point's MPC (the study's Multiple MPC Controller),
+  optionally with hysteresis;
+* ``interpolated``: the predictions of the neighbouring operating points' models blended
+  with multilinear weights in the scheduling states (heading periodic); at a grid point this
+  is that point's model;
+* ``adaptive``: relinearize at the current state and the last input every step (the study's
+  adaptive MPC); the model is exact at the current state.
+
+The heading is periodic: a model linearized at ``theta_i`` is used at ``theta_i + 2 pi k``
+(nearest ``k``) by shifting state, reference and prediction by ``2 pi k``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import Enum, StrEnum
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext
+from mpclab.controllers.qp_dense import (
+    CvxpyBoxQP,
+    TrackingQP,
+    blocking_matrix,
+    box_qp_2,
+    box_qp_active_set,
+    condenser,
+)
+from mpclab.controllers.scheduled_grid import TWO_PI, OperatingGrid
+from mpclab.errors import ConfigError
+from mpclab.objectives.base import Objective
+from mpclab.objectives.quadratic import QuadraticTracking
+from mpclab.plants.base import Plant
+from mpclab.registry import component
+
+
+class ScheduleMode(StrEnum):
+    switched = "switched"
+    interpolated = "interpolated"
+    adaptive = "adaptive"
+
+
+class QPSolver(StrEnum):
+    #: closed form for 2 free variables, else the active-set method
+    auto = "auto"
+    closed_form = "closed_form"
+    active_set = "active_set"
+    #: through CVXPY (for comparison)
+    CLARABEL = "CLARABEL"
+    OSQP = "OSQP"
+
+
+@dataclass
+class ScheduledConf:
+    _target_: str = "mpclab.controllers.scheduled.ScheduledMPC"
+    mode: ScheduleMode = ScheduleMode.switched
+    horizon: int = 32
+    control_horizon: int = 1
+    dt: float = 0.02
+    operating_points: dict[str, list[float]] = field(
+        default_factory=lambda: {
+            "theta": [0.0, math.pi / 2, math.pi, -math.pi / 2], "V": [1.0, 2.0]
+        }
+    )
+    nominal_state: dict[str, float] = field(default_factory=dict)
+    hysteresis: dict[str, float] = field(default_factory=dict)
+    solver: QPSolver = QPSolver.auto
+    solver_options: dict[str, Any] = field(default_factory=dict)
+
+
+@component("controller", "scheduled", ScheduledConf)
+class ScheduledMPC(Controller):
+    """Multiple linear MPC over a grid of operating points (switched, interpolated, adaptive).
+
+    Parameters
+    ----------
+    plant, objective
+        Injected; the objective's terms must be :class:`QuadraticTracking` (their weights are
+        summed into one diagonal state, terminal and input weight).
+    mode
+        ``switched``, ``interpolated`` or ``adaptive``.
+    horizon, control_horizon
+        Prediction steps ``T`` and free moves ``M`` (the last move is held to the end).
+    dt
+        Sample time [s]; the models are the plant's step over ``dt``.
+    operating_points
+        ``{state label: values}``; the grid is their product.
+    nominal_state
+        Values of the other states at the operating points (default 0); inputs are 0.
+    hysteresis
+        ``{scheduling label: margin}`` for ``switched`` mode.
+    solver
+        ``auto`` (closed form when there are 2 free variables, else active set),
+        ``closed_form``, ``active_set``, or ``CLARABEL`` / ``OSQP`` through CVXPY.
+    solver_options
+        Keyword options for a CVXPY solver.
+    """
+
+    log_columns = ("op",)
+
+    def __init__(
+        self,
+        plant: Plant,
+        objective: Objective,
+        mode: ScheduleMode | str = ScheduleMode.switched,
+        horizon: int = 32,
+        control_horizon: int = 1,
+        dt: float = 0.02,
+        operating_points: Mapping[str, list[float]] | None = None,
+        nominal_state: Mapping[str, float] | None = None,
+        hysteresis: Mapping[str, float] | None = None,
+        solver: QPSolver | str = QPSolver.auto,
+        solver_options: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__(plant, horizon, dt)
+        self.mode = _enum(ScheduleMode, mode, "controller.mode")
+        self.solver = _enum(QPSolver, solver, "controller.solver")
+        T, nx, nu = self.horizon, plant.nx, plant.nu
+        if not 1 <= int(control_horizon) <= T:
+            raise ConfigError(
+                f"controller.control_horizon must be in 1..{T}, got {control_horizon}"
+            )
+        self.control_horizon = M = int(control_horizon)
+        self.nz = nz = M * nu
+        if self.solver is QPSolver.closed_form and nz != 2:
+            raise ConfigError(
+                f"controller.solver=closed_form needs 2 free variables (2 inputs, control "
+                f"horizon 1); this problem has {nz}: use auto or active_set"
+            )
+        self.qp = TrackingQP(*_weights(objective, plant), T, M)
+        self.lb = np.tile(plant.u_lb, M)
+        self.ub = np.tile(plant.u_ub, M)
+        self._bounds = tuple(float(v) for pair in zip(self.lb, self.ub, strict=True) for v in pair)
+        self._E = blocking_matrix(T, M, nu)
+        self._condense = condenser(nx, nu, T, M)
+        self.grid = OperatingGrid(
+            operating_points or ScheduledConf().operating_points, plant.state_index,
+            plant.heading, hysteresis,
+        )
+        self._theta = plant.state_index(plant.heading) if plant.heading else None
+        xbar = np.zeros(nx)
+        for label, v in (nominal_state or {}).items():
+            try:
+                xbar[plant.state_index(label)] = float(v)
+            except ValueError as exc:
+                raise ConfigError(f"controller.nominal_state: {exc}") from None
+        self.op_states = []
+        for point in self.grid.points():
+            x = xbar.copy()
+            for label, v in point.items():
+                x[plant.state_index(label)] = v
+            self.op_states.append(x)
+        self._precompute()
+        self._cvx = (
+            CvxpyBoxQP(self.lb, self.ub, self.solver.value, dict(solver_options or {}))
+            if self.solver in (QPSolver.CLARABEL, QPSolver.OSQP) else None
+        )
+        self._active: int | None = None
+
+    # ------------------------------------------------------------------ construction
+    def predictor(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Condensed prediction ``(Px, Pu, pc)`` of the plant linearized at ``(x, u)``."""
+        A, B, c = self.plant.F_lin(x, u, self.dt)
+        Px, Pu, pc = self._condense(A, B, c)
+        return np.asarray(Px), np.asarray(Pu), np.asarray(pc).ravel()
+
+    def _precompute(self) -> None:
+        """Per operating point: predictor, Hessian, gradient maps and the 2 pi shift terms."""
+        nx, T, u0 = self.plant.nx, self.horizon, np.zeros(self.plant.nu)
+        e_theta = np.zeros((T + 1) * nx)
+        if self._theta is not None:
+            e_theta[self._theta :: nx] = 1.0
+        self.models = []
+        for x in self.op_states:
+            Px, Pu, pc = self.predictor(x, u0)
+            H = self.qp.hessian(Pu)
+            Kx, kc, Kr = self.qp.gradient_maps(Px, Pu, pc)
+            th = self._theta
+            # a model used at theta_op + 2 pi k: g and X gain k * these (see _shifted)
+            g_shift = TWO_PI * (Kr @ e_theta - (Kx[:, th] if th is not None else 0.0))
+            x_shift = TWO_PI * (e_theta - (Px[:, th] if th is not None else 0.0))
+            self.models.append(_OpModel(Px, Pu, pc, H, Kx, kc, Kr, g_shift, x_shift))
+
+    # ------------------------------------------------------------------ per step
+    def reset(self, x0: FloatArray) -> None:
+        super().reset(x0)
+        self._active = None
+
+    def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
+        ref = ctx.target.ravel()
+        if self.mode is ScheduleMode.switched:
+            op = self._active = self.grid.switched(x, self._active)
+            m = self.models[op]
+            k = self.grid.wraps(x, op)
+            g = m.Kx @ x + m.kc - m.Kr @ ref
+            if k:
+                g = g + k * m.g_shift
+            z, status = self._qp(m.H, g)
+            if z is None:
+                return self._failed(x, status, op)
+            X = m.Px @ x + m.Pu @ z + m.pc
+            if k:
+                X = X + k * m.x_shift
+        else:
+            op = self.grid.nearest(x)
+            Px, Pu, pc = self._model(x)
+            H = self.qp.hessian(Pu)
+            z, status = self._qp(H, self.qp.gradient(Px, Pu, pc, x, ref))
+            if z is None:
+                return self._failed(x, status, op)
+            X = Px @ x + Pu @ z + pc
+        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        u_pred = np.broadcast_to(z, (T, nu)) if self.nz == nu else (self._E @ z).reshape(T, nu)
+        return ControlStep(
+            u=z[:nu].copy(), x_pred=X.reshape(T + 1, nx), u_pred=u_pred, status="optimal",
+            cost=self.qp.cost(X, ref, z), info={"op": op},
+        )
+
+    def _model(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The predictor of the interpolated or adaptive mode at state ``x``."""
+        if self.mode is ScheduleMode.adaptive:
+            prev = self.previous_plan
+            return self.predictor(x, prev.u if prev is not None else np.zeros(self.plant.nu))
+        Px = Pu = pc = 0.0
+        for op, w in self.grid.weights(x):
+            m = self.models[op]
+            k = self.grid.wraps(x, op)
+            Px = Px + w * m.Px
+            Pu = Pu + w * m.Pu
+            pc = pc + w * (m.pc + k * m.x_shift if k else m.pc)
+        return Px, Pu, pc
+
+    def _qp(self, H: FloatArray, g: FloatArray) -> tuple[FloatArray | None, str]:
+        if self._cvx is not None:
+            return self._cvx.solve(H, g)
+        if self.nz == 2 and self.solver is not QPSolver.active_set:
+            z = box_qp_2(H[0, 0], H[0, 1], H[1, 1], g[0], g[1], *self._bounds)
+            return np.array(z), "optimal"
+        return box_qp_active_set(H, g, self.lb, self.ub), "optimal"
+
+    def _failed(self, x: FloatArray, status: str, op: int) -> ControlStep:
+        T, nu = self.horizon, self.plant.nu
+        return ControlStep(
+            u=np.zeros(nu), x_pred=np.tile(x, (T + 1, 1)), u_pred=np.zeros((T, nu)),
+            status=status, info={"op": op},
+        )
+
+    # ------------------------------------------------------------------ results
+    def operating_table(self) -> pd.DataFrame:
+        """One row per operating point: ``op`` and the scheduling states' values."""
+        return pd.DataFrame([{"op": i, **p} for i, p in enumerate(self.grid.points())])
+
+    def metrics(self, steps: pd.DataFrame) -> dict[str, Any]:
+        """Switches of the (nearest or active) operating point and the input jumps there."""
+        calls = steps[steps["status"] != "final"]
+        ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
+        U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
+        out: dict[str, Any] = {
+            "schedule_mode": self.mode.value, "n_operating_points": len(self.grid)
+        }
+        if len(ops) < 2:
+            return out | {"n_switches": 0}
+        switch = np.flatnonzero(ops[1:] != ops[:-1]) + 1
+        out["n_switches"] = int(switch.size)
+        out["switch_times_s"] = [round(float(v), 6) for v in calls["t"].to_numpy()[switch]]
+        jumps = np.abs(np.diff(U, axis=0))[switch - 1] if switch.size else np.zeros((0, U.shape[1]))
+        span = self.plant.u_ub - self.plant.u_lb
+        for j, lab in enumerate(self.plant.inputs):
+            out[f"switch_jump_max_{lab}"] = float(jumps[:, j].max()) if switch.size else 0.0
+        rel = jumps / np.where(np.isfinite(span), span, np.inf)
+        out["switch_jump_max_rel"] = float(rel.max()) if switch.size else 0.0
+        return out
+
+
+@dataclass
+class _OpModel:
+    Px: FloatArray
+    Pu: FloatArray
+    pc: FloatArray
+    H: FloatArray
+    Kx: FloatArray
+    kc: FloatArray
+    Kr: FloatArray
+    g_shift: FloatArray
+    x_shift: FloatArray
+
+
+def _weights(objective: Objective, plant: Plant) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Diagonal state, terminal and input weights summed over the objective's terms."""
+    q, qT, r = np.zeros(plant.nx), np.zeros(plant.nx), np.zeros(plant.nu)
+    for term in objective:
+        if not isinstance(term, QuadraticTracking):
+            raise ConfigError(
+                f"objective term {term.name!r} ({type(term).__name__}) cannot be expressed by "
+                "the scheduled backend, which takes QuadraticTracking terms only; backends "
+                f"that accept it: {', '.join(term.backends()) or '(none)'}"
+            )
+        try:
+            for label, w in term.state_weights.items():
+                q[plant.state_index(label)] += float(w)
+            for label, w in term.terminal_weights.items():
+                qT[plant.state_index(label)] += float(w)
+            for label, w in term.input_weights.items():
+                r[plant.input_index(label)] += float(w)
+        except ValueError as exc:
+            raise ConfigError(f"objective term {term.name!r}: {exc}") from None
+    if not r.all():
+        raise ConfigError(
+            "the scheduled backend needs a positive weight on every input (the QP must be "
+            f"strictly convex); got input weights {dict(zip(plant.inputs, r, strict=True))}"
+        )
+    return q, qT, r
+
+
+def _enum(cls: type[Enum], value: Any, where: str) -> Any:
+    try:
+        return cls(value)
+    except ValueError:
+        valid = ", ".join(m.value for m in cls)
+        raise ConfigError(f"{where}: unknown value {value!r}; valid: {valid}") from None
