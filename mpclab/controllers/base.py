@@ -99,13 +99,7 @@ class Controller(ABC):
         try:
             res = self._solve(t, x, ctx)
         except Exception as exc:  # a solver crash must not end a sweep: record and fall back
-            res = ControlStep(
-                u=np.zeros(self.plant.nu),
-                x_pred=np.tile(x, (self.horizon + 1, 1)),
-                u_pred=np.zeros((self.horizon, self.plant.nu)),
-                status=f"exception:{type(exc).__name__}",
-                info={"error": str(exc)},
-            )
+            res = self._failed(f"exception:{type(exc).__name__}", x, str(exc))
         if res.ok:
             self._plan = res
             return res
@@ -118,6 +112,14 @@ class Controller(ABC):
     @abstractmethod
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         """Solve the problem at ``x``; return the result with the solver's status."""
+
+    def _failed(self, status: str, x: FloatArray, message: str = "") -> ControlStep:
+        """A failed solve's result; :meth:`step` replaces it with the fallback."""
+        T, nu = self.horizon, self.plant.nu
+        return ControlStep(
+            u=np.zeros(nu), x_pred=np.tile(x, (T + 1, 1)), u_pred=np.zeros((T, nu)),
+            status=status, info={"error": message} if message else {},
+        )
 
     @property
     def previous_plan(self) -> ControlStep | None:

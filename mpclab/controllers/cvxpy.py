@@ -176,13 +176,6 @@ class CvxpyMPC(Controller):
             cost=float(self.problem.value),
         )
 
-    def _failed(self, status: str, x: FloatArray, message: str) -> ControlStep:
-        T, nu = self.horizon, self.plant.nu
-        return ControlStep(
-            u=np.zeros(nu), x_pred=np.tile(x, (T + 1, 1)), u_pred=np.zeros((T, nu)),
-            status=status, info={"error": message} if message else {},
-        )
-
 
 def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint]:
     """Row-wise bounds on ``V`` for the finite entries of ``lb``/``ub``."""
