@@ -1,0 +1,165 @@
+"""Merge a sweep's recordings into one file for side-by-side comparison.
+
+Each run's entities move under their own prefix (``/<run>/world/...``); the merged file
+carries a blueprint with one map per run side by side and time-series panels that overlay
+the runs. Usage::
+
+    uv run python -m mpclab.recording.merge outputs/multirun/NAME/TIME            # -> sweep.rrd
+    uv run python -m mpclab.recording.merge RUN_A/run.rrd RUN_B/run.rrd -o both.rrd
+    uv run rerun outputs/multirun/NAME/TIME/sweep.rrd
+
+A folder argument stands for every ``run.rrd`` below it. A run's prefix is made from the
+Hydra overrides (``.hydra/overrides.yaml``) that differ between the runs, e.g.
+``controller_casadi``; without them, from the run folder's name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+
+from mpclab.recording import rerun_blueprint as ent
+from mpclab.recording.rerun import RRD
+
+#: Rerun application id of merged recordings (its blueprint differs from a single run's)
+SWEEP_APP_ID = "mpclab_sweep"
+#: default file name of a merged recording, next to the runs
+MERGED = "sweep.rrd"
+
+
+def find_recordings(paths: Sequence[Path | str]) -> list[Path]:
+    """The ``.rrd`` files named, and every ``run.rrd`` below each folder named (sorted)."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found += sorted(p.rglob(RRD), key=_natural)
+        elif p.is_file():
+            found.append(p)
+        else:
+            raise FileNotFoundError(f"no recording or folder at {p}")
+    if not found:
+        raise FileNotFoundError(f"no {RRD} found in {[str(p) for p in paths]}")
+    return found
+
+
+def run_labels(rrds: Sequence[Path]) -> list[str]:
+    """One entity-path-safe prefix per recording, unique, from the overrides that differ."""
+    overrides = [_overrides(p.parent) for p in rrds]
+    common = set.intersection(*(set(o) for o in overrides)) if overrides else set()
+    labels = []
+    for rrd, over in zip(rrds, overrides, strict=True):
+        differing = [o for o in over if o not in common]
+        label = _safe("_".join(differing)) if differing else _safe(_fallback_name(rrd))
+        labels.append(label)
+    seen: dict[str, int] = {}
+    for i, label in enumerate(labels):
+        if labels.count(label) > 1:
+            seen[label] = seen.get(label, 0) + 1
+            labels[i] = f"{label}_{seen[label]}"
+    return labels
+
+
+def merge(rrds: Sequence[Path], out: Path, labels: Sequence[str] | None = None) -> Path:
+    """Write ``out``: every recording in ``rrds`` under its prefix in ``labels``."""
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    labels = list(labels) if labels is not None else run_labels(rrds)
+    if len(labels) != len(rrds) or len(set(labels)) != len(labels):
+        raise ValueError(f"need one unique label per recording, got {labels} for {len(rrds)}")
+    runs = []
+    for rrd in rrds:
+        chunks = [c for c in RrdReader(rrd).stream()
+                  if not c.entity_path.startswith("/__properties")]
+        runs.append(chunks)
+    paths = sorted({c.entity_path for chunks in runs for c in chunks})
+    states = _labels_under(paths, ent.STATES)
+    inputs = _labels_under(paths, ent.INPUTS)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(SWEEP_APP_ID, recording_id=uuid.uuid4())
+    rec.save(out, default_blueprint=ent.sweep_blueprint(labels, states, inputs))
+    rec.send_recording_name(f"sweep of {len(rrds)} runs")
+    for label, chunks in zip(labels, runs, strict=True):
+        rec.send_chunks([c.with_entity_path(f"/{label}{c.entity_path}") for c in chunks])
+        # legends of the overlaid panels name the run
+        for path in sorted({c.entity_path for c in chunks}):
+            if path.startswith(f"/{ent.STATES}/") or path.startswith(f"/{ent.INPUTS}/"):
+                leaf = path.split("/", 3)[-1]
+                rec.log(f"/{label}{path}", rr.SeriesLines(names=f"{label}: {leaf}"), static=True)
+    rec.flush()
+    rec.disconnect()
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m mpclab.recording.merge",
+        description="Merge run recordings (run.rrd) into one, each run under its own prefix.",
+    )
+    parser.add_argument("paths", nargs="+", type=Path,
+                        help=f"{RRD} files, or folders searched for {RRD} (a sweep's folder)")
+    parser.add_argument("-o", "--output", type=Path, default=None,
+                        help=f"merged file (default: {MERGED} in the first folder given, "
+                             "or next to the first file's run folder)")
+    args = parser.parse_args(argv)
+    rrds = find_recordings(args.paths)
+    out = args.output or _default_output(args.paths[0])
+    labels = run_labels(rrds)
+    merge(rrds, out, labels)
+    print(f"merged {len(rrds)} recordings into {out}:")
+    for label, rrd in zip(labels, rrds, strict=True):
+        print(f"  /{label}  <- {rrd}")
+    print(f"open it with: uv run rerun {out}")
+    return 0
+
+
+def _default_output(first: Path) -> Path:
+    return first / MERGED if first.is_dir() else first.parent.parent / MERGED
+
+
+def _labels_under(paths: Sequence[str], root: str) -> list[str]:
+    """Signal labels directly under ``/root`` (``/series/states/px`` -> ``px``), in order."""
+    labels: list[str] = []
+    for path in paths:
+        parts = path.strip("/").split("/")
+        depth = len(root.split("/"))
+        if "/".join(parts[:depth]) == root and len(parts) == depth + 1:
+            if parts[depth] not in labels:
+                labels.append(parts[depth])
+    return labels
+
+
+def _overrides(run_dir: Path) -> list[str]:
+    path = run_dir / ".hydra" / "overrides.yaml"
+    if not path.is_file():
+        return []
+    from omegaconf import OmegaConf
+
+    return [str(o) for o in OmegaConf.load(path)]
+
+
+def _fallback_name(rrd: Path) -> str:
+    summary = rrd.parent / "summary.json"
+    if summary.is_file():
+        s = json.loads(summary.read_text())
+        return f"{s.get('experiment', 'run')}_{rrd.parent.name}"
+    return rrd.parent.name or rrd.stem
+
+
+def _safe(text: str) -> str:
+    """An entity path part: letters, digits, ``_``, ``-`` and ``.`` only."""
+    text = re.sub(r"[^A-Za-z0-9_.-]+", "_", text.lstrip("+~")).strip("_")
+    return text or "run"
+
+
+def _natural(p: Path) -> list[object]:
+    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", str(p))]
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
