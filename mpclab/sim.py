@@ -83,7 +83,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             mode, active = sup.update(t, x, detections)
             ctx = StepContext(
                 goal=scen.goal, target=scen.target(t, H, dt), detections=detections,
-                active=active, mode=mode,
+                ranges=scen.ranges(x), active=active, mode=mode,
             )
             t0 = time.perf_counter()
             cs = ctrl.step(t, x, ctx)

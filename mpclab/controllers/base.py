@@ -35,6 +35,9 @@ class StepContext:
         Reference over the horizon ``(T+1, nx)``: the goal repeated, or a preview.
     detections
         Detected obstacle points ``(n, 2)`` from the range sensor (empty without one).
+    ranges
+        The range sensor's reading per ray ``(n_rays,)``, ``inf`` where a ray sees nothing
+        (empty without a sensor).
     active
         Names of the objective terms the supervisor has switched on (None: all).
     mode
@@ -44,6 +47,7 @@ class StepContext:
     goal: FloatArray
     target: FloatArray
     detections: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    ranges: FloatArray = field(default_factory=lambda: np.zeros(0))
     active: frozenset[str] | None = None
     mode: str = ""
 

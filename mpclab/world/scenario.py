@@ -108,6 +108,10 @@ class Scenario:
         """Detected obstacle points ``(n, 2)`` seen from state ``x``."""
         return np.zeros((0, 2))
 
+    def ranges(self, x: FloatArray) -> FloatArray:
+        """Range sensor reading per ray ``(n_rays,)``, ``inf`` where nothing is seen."""
+        return np.zeros(0)
+
     def collided(self, x: FloatArray) -> bool:
         return False
 
