@@ -19,7 +19,9 @@ def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
     rng = np.random.default_rng(cfg.seed)
     plant = build(cfg.plant, "plant")
     objective = build(cfg.objective, "objective")
-    controller = build(cfg.controller, "controller", plant=plant, objective=objective)
+    controller = _build_with_optional(
+        cfg.controller, "controller", plant=plant, objective=objective
+    )
     scenario = _build_with_optional(cfg.scenario, "scenario", plant=plant, rng=rng)
     supervisor = build(cfg.supervisor, "supervisor")
     recorder = _build_with_optional(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)

@@ -25,7 +25,8 @@ class Activation(StrEnum):
     logistic = "logistic"
 
 
-def _act(kind: Activation, z: FloatArray) -> FloatArray:
+def activate(kind: Activation, z: FloatArray) -> FloatArray:
+    """The hidden-layer activation ``kind`` applied elementwise."""
     if kind is Activation.tanh:
         return np.tanh(z)
     if kind is Activation.relu:
@@ -94,7 +95,7 @@ class MLP:
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             h = h @ w.T + b
             if i < last:
-                h = _act(self.activation, h)
+                h = activate(self.activation, h)
         return h * self.out_scale + self.out_offset
 
     # ------------------------------------------------------------------ conversion

@@ -83,9 +83,12 @@ class Controller(ABC):
     #: keys of ``ControlStep.info`` the runner writes as extra columns of steps.parquet
     log_columns: tuple[str, ...] = ()
 
+    #: the shortest horizon the backend accepts (0 for controllers that predict nothing)
+    min_horizon: int = 1
+
     def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
-        if int(horizon) < 1:
-            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        if int(horizon) < self.min_horizon:
+            raise ValueError(f"horizon must be >= {self.min_horizon}, got {horizon}")
         if float(dt) <= 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         self.plant = plant
@@ -132,13 +135,15 @@ class Controller(ABC):
 
     def _fallback(self, x: FloatArray, status: str, info: dict[str, Any]) -> ControlStep:
         prev = self._plan
-        if prev is None:
-            u_pred = np.tile(self.plant.clip_input(np.zeros(self.plant.nu)), (self.horizon, 1))
+        zero = self.plant.clip_input(np.zeros(self.plant.nu))
+        if prev is None or self.horizon == 0:
+            u_pred, u = np.tile(zero, (self.horizon, 1)), zero
         else:
             u_pred = shift(prev.u_pred)
+            u = u_pred[0].copy()
         x_pred = self.plant.rollout(x, u_pred, self.dt)
         res = ControlStep(
-            u=u_pred[0].copy(), x_pred=x_pred, u_pred=u_pred, status=status,
+            u=u, x_pred=x_pred, u_pred=u_pred, status=status,
             fallback=True, info=info,
         )
         self._plan = replace(res)
