@@ -23,7 +23,7 @@ def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
         cfg.controller, "controller", plant=plant, objective=objective
     )
     scenario = _build_with_optional(cfg.scenario, "scenario", plant=plant, rng=rng)
-    supervisor = build(cfg.supervisor, "supervisor")
+    supervisor = _build_with_optional(cfg.supervisor, "supervisor", plant=plant)
     recorder = _build_with_optional(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     return Run(plant, controller, scenario, supervisor, recorder)
 
