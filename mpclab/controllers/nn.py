@@ -8,6 +8,7 @@ no scikit-learn call) and clips to the input bounds. ``x_pred`` is the current s
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,26 +60,36 @@ class NNController(Controller):
         if self.mlp.n_out != plant.nu:
             raise ConfigError(f"NN weights give {self.mlp.n_out} outputs, plant "
                               f"{type(plant).__name__} has {plant.nu} inputs")
-        self._w = list(zip(self.mlp.weights, self.mlp.biases, strict=True))
+        # output scaling folded into the last layer: the step is matrix-vector products only
+        w, b = list(self.mlp.weights), list(self.mlp.biases)
+        w[-1] = w[-1] * self.mlp.out_scale[:, None]
+        b[-1] = b[-1] * self.mlp.out_scale + self.mlp.out_offset
+        self._w = list(zip(w, b, strict=True))
         self._n_rays = self.mlp.n_in - n_features(self.features, 0)
+        self._z = np.zeros(self.mlp.n_in)  # feature buffer, filled in place each step
         self._no_plan = np.zeros((0, plant.nu))
 
     def _features(self, x: FloatArray, ctx: StepContext) -> FloatArray:
+        """The same vector as :func:`mpclab.approx.features.features`, built in place."""
         r = ctx.ranges
         if r.shape != (self._n_rays,):
             raise ConfigError(f"NN was trained on {self._n_rays} rays, the scenario's sensor "
                               f"gives {r.shape[0]}")
+        z, n = self._z, self._n_rays
         p, g = x[self._ip], ctx.goal[self._ip]
-        inv = np.zeros(self._n_rays)
-        np.divide(1.0, r, out=inv, where=np.isfinite(r))
+        inv = z[-n:]
+        np.divide(1.0, r, out=inv)  # IEEE: 1/inf = 0, a ray that sees nothing
         if self.features is FeatureSet.study:
-            return np.concatenate((p, g, inv))
-        c, s = np.cos(p[2]), np.sin(p[2])
+            z[0:3] = p
+            z[3:6] = g
+            return z
+        c, s = math.cos(p[2]), math.sin(p[2])
         dx, dy = g[0] - p[0], g[1] - p[1]
         err = g[2] - p[2]
-        head = np.array((c * dx + s * dy, -s * dx + c * dy, np.hypot(dx, dy),
-                         np.sin(err), np.cos(err)))
-        return np.concatenate((head, np.minimum(1.0, self.min_range * inv)))
+        z[0:5] = (c * dx + s * dy, -s * dx + c * dy, math.hypot(dx, dy), math.sin(err),
+                  math.cos(err))
+        np.minimum(1.0, self.min_range * inv, out=inv)
+        return z
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         h = self._features(x, ctx)
@@ -87,8 +98,8 @@ class NNController(Controller):
             h = w @ h + b
             if i < last:
                 h = activate(self.mlp.activation, h)
-        u = np.clip(h * self.mlp.out_scale + self.mlp.out_offset, self.plant.u_lb,
-                    self.plant.u_ub)
-        if not np.all(np.isfinite(u)):
+        total = float(h.sum())
+        if total != total:  # NaN from a degenerate input (e.g. a range of 0 inside a disc)
             return self._failed("nan_output", x)
+        u = np.minimum(np.maximum(h, self.plant.u_lb), self.plant.u_ub)
         return ControlStep(u=u, x_pred=x[None, :], u_pred=self._no_plan, status="optimal")
