@@ -28,6 +28,7 @@ COMPONENT_PACKAGES = (
     "mpclab.supervisors",
     "mpclab.world",
     "mpclab.recording",
+    "mpclab.approx",
 )
 
 #: group -> name -> component class (for the names written into run records)
