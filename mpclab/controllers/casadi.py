@@ -1,0 +1,302 @@
+"""CasADi backend: nonlinear MPC by multiple shooting over the plant's RK4 step.
+
+The NLP is built once, with every per-step quantity a parameter: the measured state, the
+goal, the target over the horizon, up to ``max_detections`` detected points with a mask, and
+one activity weight per objective term (so a supervisor switches objective sets without a
+rebuild). Two solvers share the NLP:
+
+* ``ipopt``: solved to convergence (interior point), warm-started from the previous
+  solution shifted by one step;
+* ``sqp_rti``: real-time iteration, one SQP step (one QP, qpOASES or OSQP) per sample from
+  the shifted previous solution and multipliers, the Hessian of the Lagrangian made convex.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import Enum, StrEnum
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext, shift
+from mpclab.errors import ConfigError
+from mpclab.objectives.base import Objective
+from mpclab.plants.base import Plant
+from mpclab.registry import component
+
+
+class CasadiSolver(StrEnum):
+    ipopt = "ipopt"
+    sqp_rti = "sqp_rti"
+
+
+class QpSolver(StrEnum):
+    qpoases = "qpoases"
+    osqp = "osqp"
+
+
+#: solver return statuses that count as a solved step
+_IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
+#: one SQP step ends on the iteration limit by design; the QP itself must have succeeded
+_RTI_OK = {"Solve_Succeeded", "Maximum_Iterations_Exceeded"}
+
+
+@dataclass
+class CasadiConf:
+    _target_: str = "mpclab.controllers.casadi.CasadiMPC"
+    horizon: int = 10
+    dt: float = 0.1
+    solver: CasadiSolver = CasadiSolver.ipopt
+    qp_solver: QpSolver = QpSolver.qpoases
+    max_iter: int = 100
+    tol: float = 1e-6
+    warm_start: bool = True
+    max_detections: int = 20
+    initial_input: dict[str, float] = field(default_factory=dict)
+    terminal_constraint: dict[str, float] = field(default_factory=dict)
+    solver_options: dict[str, Any] = field(default_factory=dict)
+
+
+@component("controller", "casadi", CasadiConf)
+class CasadiMPC(Controller):
+    """Nonlinear MPC with CasADi (IPOPT, or SQP real-time iteration).
+
+    Parameters
+    ----------
+    plant, objective
+        Injected; every objective term must support CasADi.
+    horizon, dt
+        Prediction steps and sample time [s].
+    solver
+        ``ipopt`` (solve to convergence) or ``sqp_rti`` (one QP per step).
+    qp_solver
+        QP solver of ``sqp_rti``: ``qpoases`` or ``osqp``.
+    max_iter, tol
+        IPOPT's iteration limit and tolerance (ignored by ``sqp_rti``).
+    warm_start
+        Start from the previous solution (primal and multipliers) shifted by one step.
+    max_detections
+        Detected points the NLP has room for; more are cut to the nearest ones.
+    initial_input
+        ``{input label: value}`` held over the horizon as the guess of a cold start (others
+        0). A non-zero guess moves the first solve off symmetric stationary points, such as
+        a robot at rest facing sideways to its goal.
+    terminal_constraint
+        ``{state label: value}`` imposed on the last predicted state.
+    solver_options
+        Extra options for ``nlpsol`` (e.g. ``{"ipopt.linear_solver": "ma27"}``).
+    """
+
+    log_columns = ("iterations",)
+
+    def __init__(
+        self,
+        plant: Plant,
+        objective: Objective,
+        horizon: int = 10,
+        dt: float = 0.1,
+        solver: CasadiSolver | str = CasadiSolver.ipopt,
+        qp_solver: QpSolver | str = QpSolver.qpoases,
+        max_iter: int = 100,
+        tol: float = 1e-6,
+        warm_start: bool = True,
+        max_detections: int = 20,
+        initial_input: Mapping[str, float] | None = None,
+        terminal_constraint: Mapping[str, float] | None = None,
+        solver_options: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__(plant, horizon, dt)
+        self.solver = _enum(CasadiSolver, solver, "controller.solver")
+        self.qp_solver = _enum(QpSolver, qp_solver, "controller.qp_solver")
+        if int(max_iter) < 1:
+            raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
+        if int(max_detections) < 0:
+            raise ConfigError(f"controller.max_detections must be >= 0, got {max_detections}")
+        self.max_iter, self.tol = int(max_iter), float(tol)
+        self.warm_start = bool(warm_start)
+        self.max_detections = int(max_detections)
+        self._u_guess = np.zeros(plant.nu)
+        for label, value in dict(initial_input or {}).items():
+            try:
+                self._u_guess[plant.input_index(label)] = float(value)
+            except ValueError as exc:
+                raise ConfigError(f"controller.initial_input: {exc}") from None
+        self._u_guess = plant.clip_input(self._u_guess)
+        self.objective = objective
+        objective.bind(plant, "casadi")
+        self._names = list(objective.terms)
+        self._build(dict(terminal_constraint or {}), dict(solver_options or {}))
+        self._lam_x: FloatArray | None = None
+        self._lam_g: FloatArray | None = None
+
+    # ------------------------------------------------------------------ build once
+    def _build(self, terminal: dict[str, float], extra: dict[str, Any]) -> None:
+        nx, nu, T, M = self.plant.nx, self.plant.nu, self.horizon, max(self.max_detections, 1)
+        X = ca.SX.sym("X", nx, T + 1)
+        U = ca.SX.sym("U", nu, T)
+        x0 = ca.SX.sym("x0", nx)
+        goal = ca.SX.sym("goal", nx)
+        target = ca.SX.sym("target", nx, T + 1)
+        det = ca.SX.sym("detections", 2, M)
+        mask = ca.SX.sym("mask", M)
+        active = ca.SX.sym("active", len(self._names))
+        p = {"x0": x0, "goal": goal, "target": target, "detections": det, "mask": mask}
+        cost = 0
+        for j, term in enumerate(self.objective):
+            cost += active[j] * term.casadi_cost(X, U, p)
+        g = [X[:, 0] - x0]
+        g += [X[:, k + 1] - self.plant.F(X[:, k], U[:, k], self.dt) for k in range(T)]
+        for label, value in terminal.items():
+            try:
+                i = self.plant.state_index(label)
+            except ValueError as exc:
+                raise ConfigError(f"controller.terminal_constraint: {exc}") from None
+            g.append(X[i, T] - float(value))
+        w = ca.vertcat(ca.vec(X), ca.vec(U))
+        P = ca.vertcat(x0, goal, ca.vec(target), ca.vec(det), mask, active)
+        nlp = {"x": w, "p": P, "f": cost, "g": ca.vertcat(*g)}
+        self._ng = int(nlp["g"].shape[0])
+        self._M = M
+        name, opts = self._solver_setup(extra)
+        self.solver_fn = ca.nlpsol("mpc", name, nlp, opts)
+        inf = np.inf
+        xlb = np.column_stack([np.full(nx, -inf)] + [self.plant.x_lb] * T)
+        xub = np.column_stack([np.full(nx, inf)] + [self.plant.x_ub] * T)
+        ulb = np.tile(self.plant.u_lb[:, None], (1, T))
+        uub = np.tile(self.plant.u_ub[:, None], (1, T))
+        self._lbw = np.concatenate([xlb.ravel("F"), ulb.ravel("F")])
+        self._ubw = np.concatenate([xub.ravel("F"), uub.ravel("F")])
+
+    def _solver_setup(self, extra: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+        if self.solver is CasadiSolver.ipopt:
+            opts: dict[str, Any] = {
+                "print_time": False,
+                "ipopt.print_level": 0,
+                "ipopt.sb": "yes",
+                "ipopt.max_iter": self.max_iter,
+                "ipopt.tol": self.tol,
+            }
+            if self.warm_start:
+                opts["ipopt.warm_start_init_point"] = "yes"
+            name = "ipopt"
+        else:
+            qp_opts = (
+                {"printLevel": "none", "error_on_fail": False}
+                if self.qp_solver is QpSolver.qpoases
+                else {"osqp": {"verbose": False}, "error_on_fail": False}
+            )
+            opts = {
+                "print_time": False,
+                "print_header": False,
+                "print_iteration": False,
+                "print_status": False,
+                "max_iter": 1,
+                "qpsol": self.qp_solver.value,
+                "qpsol_options": qp_opts,
+                "convexify_strategy": "eigen-clip",
+                "error_on_fail": False,
+            }
+            name = "sqpmethod"
+        opts.update(extra)
+        return name, opts
+
+    # ------------------------------------------------------------------ per step
+    def reset(self, x0: Any) -> None:
+        super().reset(x0)
+        self._lam_x = self._lam_g = None
+
+    def _params(self, x: FloatArray, ctx: StepContext) -> FloatArray:
+        det, mask = self._pad_detections(x, np.asarray(ctx.detections, dtype=float))
+        if ctx.active is None:
+            act = np.ones(len(self._names))
+        else:
+            unknown = set(ctx.active) - set(self._names)
+            if unknown:
+                raise ValueError(
+                    f"active terms {sorted(unknown)} are not in the objective; "
+                    f"its terms: {', '.join(self._names)}"
+                )
+            act = np.array([1.0 if n in ctx.active else 0.0 for n in self._names])
+        target = np.asarray(ctx.target, dtype=float)
+        return np.concatenate(
+            [x, np.asarray(ctx.goal, dtype=float), target.T.ravel("F"), det.ravel("F"), mask, act]
+        )
+
+    def _pad_detections(self, x: FloatArray, det: FloatArray) -> tuple[FloatArray, FloatArray]:
+        M = self._M
+        ix, iy = (self.plant.state_index(s) for s in self.plant.position)
+        pos = np.array([x[ix], x[iy]])
+        det = det.reshape(-1, 2)
+        if len(det) > self.max_detections:  # keep the nearest
+            order = np.argsort(np.linalg.norm(det - pos, axis=1))
+            det = det[order[: self.max_detections]]
+        out = np.tile(pos + 1e3, (M, 1))  # padding far away, masked out anyway
+        out[: len(det)] = det
+        mask = np.zeros(M)
+        mask[: len(det)] = 1.0
+        return out.T, mask
+
+    def _initial_guess(self, x: FloatArray) -> FloatArray:
+        prev = self.previous_plan
+        T = self.horizon
+        if prev is None or not self.warm_start:
+            U = np.tile(self._u_guess, (T, 1))
+            X = self.plant.rollout(x, U, self.dt)
+        else:
+            X, U = shift(prev.x_pred), shift(prev.u_pred)
+            X[0] = x
+        return np.concatenate([X.ravel(), U.ravel()])  # row-major (T+1, nx) == vec of (nx, T+1)
+
+    def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
+        args: dict[str, Any] = {
+            "x0": self._initial_guess(x),
+            "p": self._params(x, ctx),
+            "lbx": self._lbw,
+            "ubx": self._ubw,
+            "lbg": 0.0,
+            "ubg": 0.0,
+        }
+        if self.warm_start and self._lam_g is not None and self.previous_plan is not None:
+            args["lam_x0"], args["lam_g0"] = self._lam_x, self._lam_g
+        sol = self.solver_fn(**args)
+        stats = self.solver_fn.stats()
+        ok = _RTI_OK if self.solver is CasadiSolver.sqp_rti else _IPOPT_OK
+        status = str(stats.get("return_status", "unknown"))
+        info = {"iterations": int(stats.get("iter_count", -1))}
+        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        w = np.asarray(sol["x"], dtype=float).ravel()
+        if status not in ok or not np.all(np.isfinite(w)):
+            self._lam_x = self._lam_g = None
+            res = self._failed(status, x)
+            res.info.update(info)
+            return res
+        self._lam_x = self._shift_lam_x(np.asarray(sol["lam_x"], dtype=float).ravel())
+        self._lam_g = np.asarray(sol["lam_g"], dtype=float).ravel()
+        X = w[: nx * (T + 1)].reshape(T + 1, nx)
+        U = w[nx * (T + 1):].reshape(T, nu)
+        return ControlStep(
+            u=U[0].copy(), x_pred=X, u_pred=U, status="optimal", cost=float(sol["f"]),
+            info=info,
+        )
+
+    def _shift_lam_x(self, lam: FloatArray) -> FloatArray:
+        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        lx = shift(lam[: nx * (T + 1)].reshape(T + 1, nx))
+        lu = shift(lam[nx * (T + 1):].reshape(T, nu))
+        return np.concatenate([lx.ravel(), lu.ravel()])
+
+    def metrics(self, steps: Any) -> dict[str, Any]:
+        it = steps["iterations"].dropna() if "iterations" in steps else []
+        return {"solver": self.solver.value, "iterations_median": float(np.median(it)) if len(it)
+                else None}
+
+
+def _enum(cls: type[Enum], value: Any, where: str) -> Any:
+    try:
+        return cls(value.value if isinstance(value, Enum) else value)
+    except ValueError:
+        valid = ", ".join(m.value for m in cls)
+        raise ConfigError(f"{where}: unknown choice {value!r}; valid: {valid}") from None

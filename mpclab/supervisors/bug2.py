@@ -1,0 +1,154 @@
+"""BUG2 (Lumelsky & Stepanov 1987) as objective-set switching (Study B, eqs. 9 and 10).
+
+The m-line joins the start and the goal. In ``go_to_goal`` the robot uses the go-to-goal
+terms until a detected point blocks the way (it lies in a corridor toward the goal, closer
+than ``block_range``); then ``wall_follow`` (the right-hand-rule terms), remembering the hit
+point. It leaves ``wall_follow`` when it is back on the m-line (within ``mline_tolerance``)
+and closer to the goal than the hit point by ``leave_margin``. Which terms each mode switches
+on is configuration, not code.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from mpclab.errors import ConfigError
+from mpclab.plants.base import Plant
+from mpclab.registry import component
+from mpclab.supervisors.base import FloatArray, Supervisor
+
+
+class Bug2Mode(StrEnum):
+    go_to_goal = "go_to_goal"
+    wall_follow = "wall_follow"
+
+
+@dataclass
+class Bug2Conf:
+    _target_: str = "mpclab.supervisors.bug2.Bug2"
+    modes: dict[str, list[str]] = field(
+        default_factory=lambda: {
+            "go_to_goal": ["J1", "J2", "J3", "J4"],
+            "wall_follow": ["J3", "J4", "J5"],
+        }
+    )
+    block_range: float = 0.2
+    corridor_half_width: float = 0.08
+    mline_tolerance: float = 0.03
+    leave_margin: float = 0.05
+
+
+@component("supervisor", "bug2", Bug2Conf)
+class Bug2(Supervisor):
+    """The BUG2 state machine over the objective's terms.
+
+    Parameters
+    ----------
+    plant
+        Injected; its ``position`` labels locate the robot in the state.
+    modes
+        ``{go_to_goal: [term, ...], wall_follow: [term, ...]}``: the terms active per mode.
+    block_range
+        A detected point blocks the way when it is ahead toward the goal closer than this [m].
+    corridor_half_width
+        ... and at most this far from the line toward the goal [m].
+    mline_tolerance
+        Distance from the m-line that counts as being on it [m].
+    leave_margin
+        How much closer to the goal than the hit point the leave point must be [m].
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        modes: Mapping[str, Sequence[str]] | None = None,
+        block_range: float = 0.2,
+        corridor_half_width: float = 0.08,
+        mline_tolerance: float = 0.03,
+        leave_margin: float = 0.05,
+    ) -> None:
+        given = dict(modes or Bug2Conf().modes)
+        valid = [m.value for m in Bug2Mode]
+        if sorted(given) != sorted(valid):
+            raise ConfigError(
+                f"supervisor.modes must name exactly the modes {valid}, got {sorted(given)}"
+            )
+        self.modes = {Bug2Mode(k): frozenset(str(t) for t in v) for k, v in given.items()}
+        for name, value in (
+            ("block_range", block_range), ("corridor_half_width", corridor_half_width),
+            ("mline_tolerance", mline_tolerance),
+        ):
+            if float(value) <= 0:
+                raise ConfigError(f"supervisor.{name} must be > 0, got {value}")
+        self.block_range = float(block_range)
+        self.corridor = float(corridor_half_width)
+        self.mline_tol = float(mline_tolerance)
+        self.leave_margin = float(leave_margin)
+        self._ip = [plant.state_index(s) for s in plant.position]
+        self.mode = Bug2Mode.go_to_goal
+        #: ((x_start, y_start), (x_goal, y_goal)), set by reset
+        self.mline: tuple[tuple[float, float], tuple[float, float]] | None = None
+        self.hit_point: FloatArray | None = None
+        #: (t, x, y) of every switch into wall_follow
+        self.hits: list[tuple[float, float, float]] = []
+
+    def reset(self, x0: FloatArray, goal: FloatArray) -> None:
+        s = np.asarray(x0, dtype=float)[self._ip]
+        g = np.asarray(goal, dtype=float)[self._ip]
+        self.mline = ((float(s[0]), float(s[1])), (float(g[0]), float(g[1])))
+        self._start, self._goal = s, g
+        self.mode = Bug2Mode.go_to_goal
+        self.hit_point = None
+        self.hits = []
+
+    def update(
+        self, t: float, x: FloatArray, detections: FloatArray
+    ) -> tuple[str, frozenset[str] | None]:
+        if self.mline is None:
+            raise RuntimeError("Bug2.update called before reset")
+        p = np.asarray(x, dtype=float)[self._ip]
+        if self.mode is Bug2Mode.go_to_goal:
+            if self.blocked(p, detections):
+                self.mode = Bug2Mode.wall_follow
+                self.hit_point = p.copy()
+                self.hits.append((float(t), float(p[0]), float(p[1])))
+        elif self.can_leave(p):
+            self.mode = Bug2Mode.go_to_goal
+            self.hit_point = None
+        return self.mode.value, self.modes[self.mode]
+
+    # ------------------------------------------------------------------ geometry
+    def blocked(self, p: FloatArray, detections: FloatArray) -> bool:
+        """Whether a detected point lies in the corridor from ``p`` toward the goal."""
+        det = np.asarray(detections, dtype=float).reshape(-1, 2)
+        to_goal = self._goal - p
+        dist = float(np.linalg.norm(to_goal))
+        if len(det) == 0 or dist == 0:
+            return False
+        u = to_goal / dist
+        rel = det - p
+        along = rel @ u
+        across = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
+        reach = min(self.block_range, dist)
+        return bool(np.any((along > 0) & (along < reach) & (across < self.corridor)))
+
+    def mline_distance(self, p: FloatArray) -> float:
+        """Distance from ``p`` to the m-line segment [m]."""
+        s, g = self._start, self._goal
+        d = g - s
+        L2 = float(d @ d)
+        lam = 0.0 if L2 == 0 else float(np.clip((p - s) @ d / L2, 0.0, 1.0))
+        return float(np.linalg.norm(p - (s + lam * d)))
+
+    def can_leave(self, p: FloatArray) -> bool:
+        """On the m-line and closer to the goal than the hit point by ``leave_margin``."""
+        if self.hit_point is None:
+            return True
+        closer = np.linalg.norm(self._goal - p) < (
+            np.linalg.norm(self._goal - self.hit_point) - self.leave_margin
+        )
+        return bool(closer and self.mline_distance(p) < self.mline_tol)

@@ -1,0 +1,184 @@
+"""A scenario with disc obstacles, a range sensor, collisions and a stall rule (Study B)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mpclab.errors import ConfigError
+from mpclab.plants.base import Plant
+from mpclab.registry import component
+from mpclab.world.obstacles import RandomLayoutConf, WallConf, layout, random_walls
+from mpclab.world.scenario import FloatArray, Scenario, ScenarioConf
+from mpclab.world.sensor import RangeSensor, SensorConf
+
+
+@dataclass
+class StallConf:
+    """Stalled when over the last ``window_s`` the distance to the goal fell by less than
+    ``min_progress_m`` and the robot ended less than ``max_displacement_m`` from where it was
+    (``null``: progress alone decides, so a detour away from the goal counts as a stall)."""
+
+    window_s: float = 4.0
+    min_progress_m: float = 0.01
+    max_displacement_m: float | None = 0.05
+
+
+@dataclass
+class ObstacleScenarioConf(ScenarioConf):
+    _target_: str = "mpclab.world.zumo_world.ObstacleScenario"
+    obstacle_radius: float = 0.05
+    discs: list[list[float]] = field(default_factory=list)
+    walls: list[WallConf] = field(default_factory=list)
+    random: RandomLayoutConf = field(default_factory=RandomLayoutConf)
+    robot_radius: float = 0.05
+    sensor: SensorConf = field(default_factory=SensorConf)
+    stall: StallConf = field(default_factory=StallConf)
+    extent: list[float] = field(default_factory=lambda: [-0.1, 1.3, -0.1, 1.3])
+
+
+@component("scenario", "obstacles", ObstacleScenarioConf)
+class ObstacleScenario(Scenario):
+    """Start, goal and a world of disc obstacles seen through a range sensor.
+
+    Parameters
+    ----------
+    plant
+        Injected; its ``position`` and ``heading`` labels locate the robot.
+    name, start, goal, arrival, t_max
+        As :class:`~mpclab.world.scenario.Scenario`.
+    obstacle_radius
+        Radius of every obstacle disc [m].
+    discs
+        Single discs ``[[x, y], ...]``.
+    walls
+        Rows of discs ``[{start: [x, y], end: [x, y], spacing: s}, ...]``.
+    random
+        Random walls added from ``rng`` (see :class:`~mpclab.world.obstacles.RandomLayoutConf`).
+    robot_radius
+        The robot is a disc of this radius; overlapping an obstacle is a collision [m].
+    sensor
+        ``{n_rays, max_range, offset_deg}`` of the range sensor.
+    stall
+        ``{window_s, min_progress_m, max_displacement_m}`` (see :class:`StallConf`).
+    extent
+        ``[x0, x1, y0, y1]`` drawn in figures [m].
+    rng
+        Injected random generator (from the run's ``seed``), used by ``random``.
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        name: str,
+        start: Mapping[str, float],
+        goal: Mapping[str, float],
+        arrival: Mapping[str, Any],
+        t_max: float = 30.0,
+        obstacle_radius: float = 0.05,
+        discs: Sequence[Sequence[float]] = (),
+        walls: Sequence[Mapping[str, Any]] = (),
+        random: Mapping[str, Any] | None = None,
+        robot_radius: float = 0.05,
+        sensor: Mapping[str, Any] | None = None,
+        stall: Mapping[str, Any] | None = None,
+        extent: Sequence[float] = (-0.1, 1.3, -0.1, 1.3),
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        super().__init__(plant, name, start, goal, arrival, t_max)
+        if plant.heading is None:
+            raise ConfigError(f"scenario {name!r} needs a plant with a heading for its sensor")
+        self._ip = [plant.state_index(s) for s in plant.position]
+        self._ih = plant.state_index(plant.heading)
+        self.robot_radius = float(robot_radius)
+        if self.robot_radius < 0:
+            raise ConfigError(f"scenario.robot_radius must be >= 0, got {robot_radius}")
+        spacing = min((float(w.get("spacing", 0.05)) for w in walls), default=0.05)
+        obs = layout(discs, walls, obstacle_radius)
+        if random is not None and int(random.get("n_walls", 0)) > 0:
+            if rng is None:
+                raise ConfigError(f"scenario {name!r}: random walls need the run's rng")
+            extra = random_walls(
+                rng, random, obstacle_radius, spacing,
+                keep_away=[self.x0[self._ip], self.goal[self._ip]],
+            )
+            obs = np.concatenate([obs, extra], axis=0)
+        #: obstacle discs (n, 3): centre x, centre y, radius [m]
+        self.obstacles = obs
+        self.sensor = RangeSensor(**dict(sensor or {}))
+        self.stall_rule = StallConf(**dict(stall or {}))
+        if self.stall_rule.window_s <= 0:
+            raise ConfigError(
+                f"scenario.stall.window_s must be > 0, got {self.stall_rule.window_s}"
+            )
+        self.extent = [float(v) for v in extent]
+        if self.clearance(self.x0) < 0:
+            raise ConfigError(f"scenario {name!r}: the start overlaps an obstacle")
+
+    # ---------------------------------------------------------------- world hooks
+    def pose(self, x: FloatArray) -> FloatArray:
+        """``(x, y, theta)`` of state ``x``."""
+        x = np.asarray(x, dtype=float)
+        return np.array([x[self._ip[0]], x[self._ip[1]], x[self._ih]])
+
+    def detect(self, x: FloatArray) -> FloatArray:
+        return self.sensor.detect(self.pose(x), self.obstacles)
+
+    def ranges(self, x: FloatArray) -> FloatArray:
+        """Range of every ray ``(n_rays,)`` [m], ``inf`` where a ray sees nothing."""
+        return self.sensor.distances(self.pose(x), self.obstacles)
+
+    def rays(self, x: FloatArray) -> FloatArray:
+        """Ray end points ``(n_rays, 2)``: the hit point, or the point at maximum range."""
+        return self.sensor.end_points(self.pose(x), self.obstacles)[0]
+
+    def clearance(self, x: FloatArray) -> float:
+        if len(self.obstacles) == 0:
+            return float("nan")
+        p = np.asarray(x, dtype=float)[self._ip]
+        gaps = np.linalg.norm(self.obstacles[:, :2] - p, axis=1) - self.obstacles[:, 2]
+        return float(gaps.min() - self.robot_radius)
+
+    def collided(self, x: FloatArray) -> bool:
+        return bool(len(self.obstacles)) and self.clearance(x) < 0
+
+    def goal_distance(self, x: FloatArray) -> float:
+        p = np.asarray(x, dtype=float)[self._ip]
+        return float(np.linalg.norm(p - self.goal[self._ip]))
+
+    def stalled(self, t: list[float], xs: list[FloatArray]) -> bool:
+        rule = self.stall_rule
+        if not t or t[-1] - t[0] < rule.window_s - 1e-9:
+            return False
+        i = int(np.searchsorted(np.asarray(t), t[-1] - rule.window_s - 1e-9))
+        progress = self.goal_distance(xs[i]) - self.goal_distance(xs[-1])
+        if progress >= rule.min_progress_m:
+            return False
+        if rule.max_displacement_m is None:
+            return True
+        moved = np.linalg.norm(np.asarray(xs[-1])[self._ip] - np.asarray(xs[i])[self._ip])
+        return bool(moved < rule.max_displacement_m)
+
+    def metrics(self, steps: Any) -> dict[str, Any]:
+        xs = steps[list(self.plant.position)].to_numpy(dtype=float)
+        g = self.goal[self._ip]
+        return {
+            "n_obstacles": int(len(self.obstacles)),
+            "min_goal_distance_m": float(np.min(np.linalg.norm(xs - g, axis=1))),
+            "path_length_m": float(np.sum(np.linalg.norm(np.diff(xs, axis=0), axis=1))),
+        }
+
+    # ---------------------------------------------------------------- figures
+    def draw(self, ax: Any) -> None:
+        """Obstacle discs (black) on a matplotlib axis, with the world's extent."""
+        from matplotlib.patches import Circle
+
+        for cx, cy, r in self.obstacles:
+            ax.add_patch(Circle((cx, cy), r, color="k", alpha=0.85, lw=0))
+        ax.plot([], [], "o", color="k", label="obstacles")
+        x0, x1, y0, y1 = self.extent
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y0, y1)
