@@ -79,12 +79,8 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             if k >= n_max:
                 status = "timeout"
                 break
-            detections = scen.detect(x)
-            mode, active = sup.update(t, x, detections)
-            ctx = StepContext(
-                goal=scen.goal, target=scen.target(t, H, dt), detections=detections,
-                ranges=scen.ranges(x), active=active, mode=mode,
-            )
+            ctx = sense(run, t, x)
+            mode = ctx.mode
             t0 = time.perf_counter()
             cs = ctrl.step(t, x, ctx)
             solve_time = time.perf_counter() - t0
@@ -105,6 +101,18 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     summary = _summary(steps, status, error, t_end, scen)
     rec.finish(x, t_end, summary)
     return RunResult(steps, horizons, summary)
+
+
+def sense(run: Run, t: float, x: np.ndarray) -> StepContext:
+    """What the controller is given at ``(t, x)``: sensor readings, the supervisor's choice
+    of objective terms (the supervisor's state advances) and the target over the horizon."""
+    scen, ctrl = run.scenario, run.controller
+    detections = scen.detect(x)
+    mode, active = run.supervisor.update(t, x, detections)
+    return StepContext(
+        goal=scen.goal, target=scen.target(t, ctrl.horizon, ctrl.dt), detections=detections,
+        ranges=scen.ranges(x), active=active, mode=mode,
+    )
 
 
 class _StepLog:
