@@ -38,6 +38,8 @@ class ObstacleScenarioConf(ScenarioConf):
     sensor: SensorConf = field(default_factory=SensorConf)
     stall: StallConf = field(default_factory=StallConf)
     extent: list[float] = field(default_factory=lambda: [-0.1, 1.3, -0.1, 1.3])
+    start_region: dict[str, list[float]] = field(default_factory=dict)
+    start_clearance: float = 0.0
 
 
 @component("scenario", "obstacles", ObstacleScenarioConf)
@@ -66,6 +68,12 @@ class ObstacleScenario(Scenario):
         ``{window_s, min_progress_m, max_displacement_m}`` (see :class:`StallConf`).
     extent
         ``[x0, x1, y0, y1]`` drawn in figures [m].
+    start_region
+        ``{state label: [low, high]}``: when given, those start values are drawn uniformly
+        from ``rng`` (the run's seed), redrawn until the robot is at least
+        ``start_clearance`` from every obstacle and not already at the goal.
+    start_clearance
+        Clearance a random start keeps from the obstacles [m].
     rng
         Injected random generator (from the run's ``seed``), used by ``random``.
     """
@@ -86,6 +94,8 @@ class ObstacleScenario(Scenario):
         sensor: Mapping[str, Any] | None = None,
         stall: Mapping[str, Any] | None = None,
         extent: Sequence[float] = (-0.1, 1.3, -0.1, 1.3),
+        start_region: Mapping[str, Sequence[float]] | None = None,
+        start_clearance: float = 0.0,
         rng: np.random.Generator | None = None,
     ) -> None:
         super().__init__(plant, name, start, goal, arrival, t_max)
@@ -115,8 +125,31 @@ class ObstacleScenario(Scenario):
                 f"scenario.stall.window_s must be > 0, got {self.stall_rule.window_s}"
             )
         self.extent = [float(v) for v in extent]
+        if start_region:
+            if rng is None:
+                raise ConfigError(f"scenario {name!r}: a random start needs the run's rng")
+            self.x0 = self._random_start(dict(start_region), float(start_clearance), rng)
         if self.clearance(self.x0) < 0:
             raise ConfigError(f"scenario {name!r}: the start overlaps an obstacle")
+
+    def _random_start(
+        self, region: dict[str, Sequence[float]], clearance: float, rng: np.random.Generator
+    ) -> FloatArray:
+        idx, lo, hi = [], [], []
+        for label, (a, b) in region.items():
+            try:
+                idx.append(self.plant.state_index(label))
+            except ValueError as exc:
+                raise ConfigError(f"scenario.start_region: {exc}") from None
+            lo.append(float(a))
+            hi.append(float(b))
+        for _ in range(10_000):
+            x0 = self.x0.copy()
+            x0[idx] = rng.uniform(lo, hi)
+            if not self.arrived(x0) and not (self.clearance(x0) < clearance):
+                return x0
+        raise ConfigError(f"scenario {self.name!r}: no start in {region} keeps {clearance} m "
+                          "from the obstacles")
 
     # ---------------------------------------------------------------- world hooks
     def pose(self, x: FloatArray) -> FloatArray:
