@@ -45,7 +45,7 @@ RRD = "run.rrd"
 APP_ID = "mpclab"
 
 _RED, _BLUE, _GREY = (214, 39, 40), (31, 119, 180), (140, 140, 140)
-_GREEN, _WHITE, _PURPLE = (44, 160, 44), (230, 230, 230), (148, 103, 189)
+_GREEN, _WHITE, _PURPLE = (44, 160, 44), (190, 190, 230), (148, 103, 189)
 _YELLOW, _ORANGE = (230, 200, 60, 90), (255, 127, 14)
 #: line and point radii in UI points (Rerun reads negative radii as UI points)
 _THIN, _THICK = -1.0, -2.5
@@ -116,14 +116,17 @@ class RerunRecorder(Recorder):
         self._status: str | None = None
         self._k = 0
         key_states = tuple(plant.plot_states) or self._states
+        reference = _reference_table(scen)
+        box = _scene_box(scen, self._pos, reference)
+        extent = max(float(np.hypot(box[1] - box[0], box[3] - box[2])), 0.1)
+        self._arrow = self.arrow_length or 0.06 * extent
         self.path.parent.mkdir(parents=True, exist_ok=True)
         rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
-        rec.save(self.path, default_blueprint=ent.run_blueprint(key_states, self._inputs))
+        rec.save(self.path, default_blueprint=ent.run_blueprint(
+            key_states, self._inputs, bounds=_padded(box, extent)))
         self._rec = rec
         name = self.cfg.get("name") if self.cfg is not None else None
         rec.send_recording_name(f"{name or 'run'} / {scen.name}")
-        reference = _reference_table(scen)
-        self._arrow = self.arrow_length or 0.06 * _extent(scen, self._pos, reference)
         self._log_static(run, reference)
 
     def log_step(self, k: int, t: float, x: Any, step: Any, ctx: Any) -> None:
@@ -198,6 +201,17 @@ class RerunRecorder(Recorder):
 
         rec, scen = self._rec, self._scen
         assert rec is not None
+        rec.log(ent.WORLD, rr.Transform3D(mat3x3=np.diag([1.0, -1.0, 1.0])), static=True)
+        # styles of the per-step entities, logged once: a static value holds for every step
+        vehicle = rr.Points2D if self._head is None else rr.Arrows2D
+        for path, style in (
+            (ent.PATH, rr.LineStrips2D.from_fields(colors=[_RED], radii=[_THICK])),
+            (ent.HORIZON, rr.LineStrips2D.from_fields(colors=[_BLUE], radii=[_THIN])),
+            (ent.RAYS, rr.LineStrips2D.from_fields(colors=[_YELLOW], radii=[_THIN])),
+            (ent.DETECTIONS, rr.Points2D.from_fields(colors=[_ORANGE], radii=[_THICK])),
+            (ent.VEHICLE, vehicle.from_fields(colors=[_ORANGE], radii=[_THICK])),
+        ):
+            rec.log(path, style, static=True)
         rec.log(ent.CONFIG, rr.TextDocument(self._config_text(),
                                             media_type=rr.MediaType.MARKDOWN), static=True)
         obstacles = np.asarray(scen.obstacles, dtype=float).reshape(-1, 3)
@@ -277,10 +291,9 @@ class RerunRecorder(Recorder):
 
         assert self._rec is not None
         if self._head is None:
-            cols = rr.Points2D.columns(positions=pos, colors=[_RED] * len(pos))
+            cols = rr.Points2D.columns(positions=pos)
         else:
-            cols = rr.Arrows2D.columns(origins=pos, vectors=self._arrow_vec(heading),
-                                       colors=[_RED] * len(pos))
+            cols = rr.Arrows2D.columns(origins=pos, vectors=self._arrow_vec(heading))
         self._rec.send_columns(ent.VEHICLE, idx, cols)
 
     def _arrow_vec(self, heading: Any) -> np.ndarray:
@@ -365,8 +378,8 @@ def _reference_table(scen: Any) -> Any:
     return fn() if callable(fn) else None
 
 
-def _extent(scen: Any, pos: list[int], reference: Any) -> float:
-    """Size of the scene [m]: the diagonal of the box around start, goal, obstacles, reference."""
+def _scene_box(scen: Any, pos: list[int], reference: Any) -> tuple[float, float, float, float]:
+    """``(x_min, x_max, y_min, y_max)`` around start, goal, obstacles and reference [m]."""
     pts = [scen.x0[pos], scen.goal[pos]]
     obstacles = np.asarray(scen.obstacles, dtype=float).reshape(-1, 3)
     for cx, cy, r in obstacles:
@@ -375,4 +388,11 @@ def _extent(scen: Any, pos: list[int], reference: Any) -> float:
     if reference is not None and px in reference and py in reference:
         pts += list(reference[[px, py]].to_numpy(dtype=float))
     P = np.asarray(pts, dtype=float)
-    return max(float(np.linalg.norm(P.max(axis=0) - P.min(axis=0))), 0.1)
+    (x0, y0), (x1, y1) = P.min(axis=0), P.max(axis=0)
+    return float(x0), float(x1), float(y0), float(y1)
+
+
+def _padded(box: tuple[float, float, float, float], extent: float) -> tuple[float, ...]:
+    x0, x1, y0, y1 = box
+    m = 0.15 * extent
+    return x0 - m, x1 + m, y0 - m, y1 + m

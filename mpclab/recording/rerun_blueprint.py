@@ -16,7 +16,7 @@ if TYPE_CHECKING:  # rerun is imported only when a recording is made (it is slow
 #: timelines every temporal entity is logged on
 STEP, SIM_TIME = "step", "sim_time"
 
-WORLD = "world"
+WORLD = "world"  # static Transform3D flipping y: 2D views draw y downwards, the map y upwards
 OBSTACLES = "world/obstacles"  # static Points2D: centres, radii = obstacle radii
 GOAL = "world/goal"  # static Arrows2D (Points2D without a heading)
 START = "world/start"  # static Arrows2D (Points2D without a heading)
@@ -54,14 +54,26 @@ def _history() -> rrb.VisibleTimeRanges:
     )
 
 
-def map_view(prefix: str = "", name: str = "map") -> rrb.Spatial2DView:
-    """The 2D map: world, vehicle, horizon; the path accumulates up to the time cursor."""
+def map_view(
+    prefix: str = "", name: str = "map", bounds: Sequence[float] | None = None
+) -> rrb.Spatial2DView:
+    """The 2D map: world, vehicle, horizon; the path accumulates up to the time cursor.
+
+    ``bounds``: ``(x_min, x_max, y_min, y_max)`` [m] shown at first (None: fit the data).
+    """
     import rerun.blueprint as rrb
 
+    visual = None
+    if bounds is not None:
+        x0, x1, y0, y1 = map(float, bounds)
+        # the view's space is /world's parent, where y is flipped
+        visual = rrb.VisualBounds2D(x_range=[x0, x1], y_range=[-y1, -y0])
     return rrb.Spatial2DView(
-        origin=f"{prefix}/{WORLD}",
+        origin=prefix or "/",  # the space above /world, so that world's y flip applies
+        contents=f"{prefix}/{WORLD}/**",
         name=name,
         overrides={f"{prefix}/{PATH}": _history()},
+        visual_bounds=visual,
     )
 
 
@@ -91,13 +103,15 @@ def series_views(
     return views
 
 
-def run_blueprint(states: Sequence[str], inputs: Sequence[str]) -> rrb.Blueprint:
+def run_blueprint(
+    states: Sequence[str], inputs: Sequence[str], bounds: Sequence[float] | None = None
+) -> rrb.Blueprint:
     """A single run: the map beside stacked time series, events and the config in tabs."""
     import rerun.blueprint as rrb
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            map_view(),
+            map_view(bounds=bounds),
             rrb.Vertical(
                 *series_views(states, inputs),
                 rrb.Tabs(
