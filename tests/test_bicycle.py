@@ -216,6 +216,18 @@ def test_interpolation_at_a_grid_point_equals_that_points_model() -> None:
     assert got == {(0.0, 1.0): 0.375, (0.0, 2.0): 0.125, (q, 1.0): 0.375, (q, 2.0): 0.125}
 
 
+@pytest.mark.parametrize("thetas", [[0.0, math.pi / 2, math.pi, -math.pi / 2], [1.0, 2.0, -2.5]])
+def test_nearest_operating_point_is_the_nearest_on_the_circle(thetas) -> None:
+    ctrl = controller(operating_points={"theta": thetas, "V": [1.0, 1.5, 2.0]})
+    table = ctrl.operating_table()
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        x = np.array([0, 0, rng.uniform(-20, 20), 0, 0, rng.uniform(0, 3)])
+        dist = [abs(math.remainder(x[2] - th, 2 * math.pi)) + 10 * abs(x[5] - v)
+                for th, v in zip(table.theta, table.V, strict=True)]
+        assert ctrl.grid.nearest(x) == int(np.argmin(dist))
+
+
 def test_switched_mode_hysteresis_delays_the_switch() -> None:
     plain = controller()
     hyst = controller(hysteresis={"theta": 0.1})

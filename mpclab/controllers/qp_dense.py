@@ -21,8 +21,6 @@ reference). With box bounds on the inputs the QP is ``min 1/2 U' H U + g' U``,
 
 from __future__ import annotations
 
-import math
-
 import casadi as ca
 import cvxpy as cp
 import numpy as np
@@ -131,29 +129,31 @@ def box_qp_2(
     """Exact minimizer of ``1/2 z' H z + g' z`` over the box ``[l0, u0] x [l1, u1]``.
 
     ``H = [[h00, h01], [h01, h11]]`` must be positive definite. If the unconstrained
-    minimizer is outside the box, the constrained one lies on the boundary: each of the four
-    edges is a 1-D convex problem solved exactly by clipping, and the best edge wins (corners
-    are edge end points). Plain floats: no array overhead for two numbers.
+    minimizer violates no bound it is the answer. Otherwise at least one bound it violates
+    is active at the optimum (were none, the optimum would also solve the problem with only
+    its active bounds, which the unconstrained minimizer satisfies and beats). So the
+    optimum lies on the edge of a violated bound: a 1-D convex problem, solved exactly by
+    clipping; with two violated bounds the better of the two edges wins. Plain floats: no
+    array overhead for two numbers.
     """
     det = h00 * h11 - h01 * h01
     z0 = (h01 * g1 - h11 * g0) / det
     z1 = (h01 * g0 - h00 * g1) / det
-    if l0 <= z0 <= u0 and l1 <= z1 <= u1:
+    a = l0 if z0 < l0 else (u0 if z0 > u0 else None)
+    b = l1 if z1 < l1 else (u1 if z1 > u1 else None)
+    if a is None and b is None:
         return z0, z1
-    best, b0, b1 = math.inf, 0.0, 0.0
-    for a in (l0, u0):
-        if math.isfinite(a):
-            b = min(max(-(g1 + h01 * a) / h11, l1), u1)
-            J = 0.5 * (h00 * a * a + h11 * b * b) + h01 * a * b + g0 * a + g1 * b
-            if J < best:
-                best, b0, b1 = J, a, b
-    for b in (l1, u1):
-        if math.isfinite(b):
-            a = min(max(-(g0 + h01 * b) / h00, l0), u0)
-            J = 0.5 * (h00 * a * a + h11 * b * b) + h01 * a * b + g0 * a + g1 * b
-            if J < best:
-                best, b0, b1 = J, a, b
-    return b0, b1
+    if a is not None:  # on the edge z0 = a
+        e1 = min(max(-(g1 + h01 * a) / h11, l1), u1)
+        if b is None:
+            return a, e1
+    if b is not None:  # on the edge z1 = b
+        e0 = min(max(-(g0 + h01 * b) / h00, l0), u0)
+        if a is None:
+            return e0, b
+    Ja = 0.5 * (h00 * a * a + h11 * e1 * e1) + h01 * a * e1 + g0 * a + g1 * e1
+    Jb = 0.5 * (h00 * e0 * e0 + h11 * b * b) + h01 * e0 * b + g0 * e0 + g1 * b
+    return (a, e1) if Ja <= Jb else (e0, b)
 
 
 def box_qp_active_set(

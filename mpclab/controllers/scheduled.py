@@ -132,6 +132,7 @@ class ScheduledMPC(Controller):
         self.mode = _enum(ScheduleMode, mode, "controller.mode")
         self.solver = _enum(QPSolver, solver, "controller.solver")
         T, nx, nu = self.horizon, plant.nx, plant.nu
+        self._nx, self._nu = nx, nu
         if not 1 <= int(control_horizon) <= T:
             raise ConfigError(
                 f"controller.control_horizon must be in 1..{T}, got {control_horizon}"
@@ -181,21 +182,40 @@ class ScheduledMPC(Controller):
         return np.asarray(Px), np.asarray(Pu), np.asarray(pc).ravel()
 
     def _precompute(self) -> None:
-        """Per operating point: predictor, Hessian, gradient maps and the 2 pi shift terms."""
+        """Per operating point: predictor, Hessian, gradient maps and the 2 pi shift terms.
+
+        The per-step products are stacked so that a step is two matrix-vector products:
+        ``g = K [x; ref; 1]`` and ``X = P [x; z; 1]``.
+        """
         nx, T, u0 = self.plant.nx, self.horizon, np.zeros(self.plant.nu)
         e_theta = np.zeros((T + 1) * nx)
-        if self._theta is not None:
-            e_theta[self._theta :: nx] = 1.0
+        th = self._theta
+        if th is not None:
+            e_theta[th::nx] = 1.0
         self.models = []
-        for x in self.op_states:
+        for op, x in enumerate(self.op_states):
             Px, Pu, pc = self.predictor(x, u0)
             H = self.qp.hessian(Pu)
             Kx, kc, Kr = self.qp.gradient_maps(Px, Pu, pc)
-            th = self._theta
-            # a model used at theta_op + 2 pi k: g and X gain k * these (see _shifted)
+            # used at theta_op + 2 pi k, the model shifts state, reference and prediction by
+            # 2 pi k in theta: g and X gain k times these
             g_shift = TWO_PI * (Kr @ e_theta - (Kx[:, th] if th is not None else 0.0))
             x_shift = TWO_PI * (e_theta - (Px[:, th] if th is not None else 0.0))
-            self.models.append(_OpModel(Px, Pu, pc, H, Kx, kc, Kr, g_shift, x_shift))
+            self.models.append(_OpModel(
+                Px, Pu, pc, H, Kx, kc, Kr, g_shift, x_shift,
+                K=np.hstack([Kx, -Kr, kc[:, None]]), P=np.hstack([Px, Pu, pc[:, None]]),
+                h=(float(H[0, 0]), float(H[0, 1]), float(H[-1, -1])),
+                theta=self.grid.heading(op) or 0.0,
+            ))
+        n_ref = (T + 1) * nx
+        self._v = np.zeros(nx + n_ref + 1)  # [x; ref; 1]
+        self._v[-1] = 1.0
+        self._w = np.zeros(nx + self.nz + 1)  # [x; z; 1]
+        self._w[-1] = 1.0
+        self._wq = self.qp.w
+        self._hysteresis = any(self.grid.hysteresis)
+        self._r_diag = np.diag(self.qp.R).tolist()  # E' R E is diagonal: blocked inputs
+        self._closed_form = self.nz == 2 and self.solver in (QPSolver.auto, QPSolver.closed_form)
 
     # ------------------------------------------------------------------ per step
     def reset(self, x0: FloatArray) -> None:
@@ -204,32 +224,61 @@ class ScheduledMPC(Controller):
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         ref = ctx.target.ravel()
-        if self.mode is ScheduleMode.switched:
-            op = self._active = self.grid.switched(x, self._active)
-            m = self.models[op]
-            k = self.grid.wraps(x, op)
-            g = m.Kx @ x + m.kc - m.Kr @ ref
+        if self.mode is not ScheduleMode.switched:
+            return self._solve_model(x, ref)
+        xl = x.tolist()
+        op = self._active = (
+            self.grid.switched(xl, self._active) if self._hysteresis else self.grid.nearest(xl)
+        )
+        m = self.models[op]
+        nx = self._nx
+        v, w = self._v, self._w
+        v[:nx] = x
+        v[nx:-1] = ref
+        w[:nx] = x
+        k = round((xl[self._theta] - m.theta) / TWO_PI) if self._theta is not None else 0
+        if self._closed_form:  # plain floats: no array overhead for two numbers
+            g0, g1 = m.K.dot(v).tolist()
             if k:
-                g = g + k * m.g_shift
+                g0, g1 = g0 + k * m.gs[0], g1 + k * m.gs[1]
+            z0, z1 = box_qp_2(*m.h, g0, g1, *self._bounds)
+            w[nx], w[nx + 1] = z0, z1
+            u_cost = self._r_diag[0] * z0 * z0 + self._r_diag[1] * z1 * z1
+        else:
+            g = m.K.dot(v)
+            if k:
+                g += k * m.g_shift
             z, status = self._qp(m.H, g)
             if z is None:
                 return self._failed(x, status, op)
-            X = m.Px @ x + m.Pu @ z + m.pc
-            if k:
-                X = X + k * m.x_shift
-        else:
-            op = self.grid.nearest(x)
-            Px, Pu, pc = self._model(x)
-            H = self.qp.hessian(Pu)
-            z, status = self._qp(H, self.qp.gradient(Px, Pu, pc, x, ref))
-            if z is None:
-                return self._failed(x, status, op)
-            X = Px @ x + Pu @ z + pc
-        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
-        u_pred = np.broadcast_to(z, (T, nu)) if self.nz == nu else (self._E @ z).reshape(T, nu)
+            w[nx:-1] = z
+            u_cost = float(np.dot(self._r_diag, z * z))
+        X = m.P.dot(w)
+        if k:
+            X += k * m.x_shift
+        return self._result(X, w[nx:-1].copy(), ref, op, u_cost)
+
+    def _solve_model(self, x: FloatArray, ref: FloatArray) -> ControlStep:
+        """Interpolated or adaptive mode: a predictor built for this state, then the QP."""
+        op = self.grid.nearest(x)
+        Px, Pu, pc = self._model(x)
+        z, status = self._qp(self.qp.hessian(Pu), self.qp.gradient(Px, Pu, pc, x, ref))
+        if z is None:
+            return self._failed(x, status, op)
+        return self._result(Px @ x + Pu @ z + pc, z, ref, op, float(np.dot(self._r_diag, z * z)))
+
+    def _result(
+        self, X: FloatArray, z: FloatArray, ref: FloatArray, op: int, u_cost: float
+    ) -> ControlStep:
+        """The step's result; ``u_cost`` is the input part of the cost."""
+        nx, nu, T = self._nx, self._nu, self.horizon
+        u_pred = z[None, :].repeat(T, 0) if self.nz == nu else (self._E @ z).reshape(T, nu)
+        e = X - ref
+        e *= e
         return ControlStep(
-            u=z[:nu].copy(), x_pred=X.reshape(T + 1, nx), u_pred=u_pred, status="optimal",
-            cost=self.qp.cost(X, ref, z), info={"op": op},
+            u=z if self.nz == nu else z[:nu].copy(), x_pred=X.reshape(T + 1, nx),
+            u_pred=u_pred, status="optimal", cost=float(self._wq.dot(e)) + u_cost,
+            info={"op": op},
         )
 
     def _model(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -250,7 +299,7 @@ class ScheduledMPC(Controller):
         if self._cvx is not None:
             return self._cvx.solve(H, g)
         if self.nz == 2 and self.solver is not QPSolver.active_set:
-            z = box_qp_2(H[0, 0], H[0, 1], H[1, 1], g[0], g[1], *self._bounds)
+            z = box_qp_2(*H.ravel()[[0, 1, 3]].tolist(), *g.tolist(), *self._bounds)
             return np.array(z), "optimal"
         return box_qp_active_set(H, g, self.lb, self.ub), "optimal"
 
@@ -299,6 +348,18 @@ class _OpModel:
     Kr: FloatArray
     g_shift: FloatArray
     x_shift: FloatArray
+    #: [Kx, -Kr, kc]: g = K [x; ref; 1]
+    K: FloatArray
+    #: [Px, Pu, pc]: X = P [x; z; 1]
+    P: FloatArray
+    #: H entries (h00, h01, h11) as floats, for the closed form
+    h: tuple[float, float, float]
+    #: the operating point's heading (0 without a periodic scheduling state)
+    theta: float
+
+    def __post_init__(self) -> None:
+        #: g_shift as floats, for the closed form
+        self.gs = tuple(self.g_shift.tolist())
 
 
 def _weights(objective: Objective, plant: Plant) -> tuple[FloatArray, FloatArray, FloatArray]:

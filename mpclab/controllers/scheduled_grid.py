@@ -8,6 +8,7 @@ values are compared on the circle, and a state's heading is matched to the neare
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -42,11 +43,30 @@ class _Axis:
     def nearest(self, v: float) -> tuple[int, float]:
         """``(config index, distance)`` of the grid value nearest to ``v``."""
         best, dist = 0, math.inf
-        for i, g in enumerate(self.values):
-            d = abs(_wrap(v - g)) if self.periodic else abs(v - g)
-            if d < dist:
-                best, dist = i, d
+        if self.periodic:
+            for i, g in enumerate(self.values):
+                d = abs((v - g + math.pi) % TWO_PI - math.pi)
+                if d < dist:
+                    best, dist = i, d
+        else:
+            for i, g in enumerate(self.values):
+                d = abs(v - g)
+                if d < dist:
+                    best, dist = i, d
         return best, dist
+
+    def cells(self) -> tuple[list[float], list[int]]:
+        """Midpoints between neighbouring values and the config index nearest in each cell.
+
+        ``indices[bisect(cuts, v)]`` is the nearest value's index (``v`` taken modulo 2 pi
+        when periodic: the cells then wrap around through 0).
+        """
+        s, order = self._sorted, self._order
+        mids = [(a + b) / 2 for a, b in zip(s[:-1], s[1:], strict=True)]
+        if not self.periodic:
+            return mids, list(order)
+        wrap = (s[-1] + s[0] + TWO_PI) / 2  # midpoint across 2 pi
+        return [wrap - TWO_PI, *mids, wrap], [order[-1], *order, order[0]]
 
     def distance(self, v: float, i: int) -> float:
         d = v - self.values[i]
@@ -123,6 +143,11 @@ class OperatingGrid:
         self.hysteresis = [float(hysteresis.get(a.label, 0.0)) for a in self.axes]
         self.shape = tuple(len(a.values) for a in self.axes)
         self._strides = [int(np.prod(self.shape[i + 1 :])) for i in range(len(self.shape))]
+        #: per axis: the midpoints between neighbouring values and the op offset of each cell
+        self._cuts = []
+        for a, stride in zip(self.axes, self._strides, strict=True):
+            cuts, cells = a.cells()
+            self._cuts.append((a.index, a.periodic, cuts, [stride * i for i in cells]))
         #: periodic axis position and the state index of the heading (None: no periodic axis)
         self.periodic_axis = next((i for i, a in enumerate(self.axes) if a.periodic), None)
 
@@ -146,22 +171,30 @@ class OperatingGrid:
     def unflat(self, op: int) -> list[int]:
         return [(op // s) % n for s, n in zip(self._strides, self.shape, strict=True)]
 
-    def wraps(self, x: np.ndarray, op: int) -> int:
+    def heading(self, op: int) -> float | None:
+        """The periodic (heading) value of operating point ``op``, or None."""
+        p = self.periodic_axis
+        return None if p is None else self.axes[p].values[self.unflat(op)[p]]
+
+    def wraps(self, x: Sequence[float], op: int) -> int:
         """``k`` such that the heading of ``x`` is nearest to ``theta_op + 2 pi k`` (0 if none)."""
         p = self.periodic_axis
         if p is None:
             return 0
         ax = self.axes[p]
-        g = ax.values[self.unflat(op)[p]]
-        return round((x[ax.index] - g) / TWO_PI)
+        return round((x[ax.index] - ax.values[self.unflat(op)[p]]) / TWO_PI)
 
-    def nearest(self, x: np.ndarray) -> int:
+    def nearest(self, x: Sequence[float]) -> int:
         """The op index nearest to ``x`` (nearest value per scheduling state)."""
-        return self.flat([a.nearest(float(x[a.index]))[0] for a in self.axes])
+        op = 0
+        for index, periodic, cuts, ops in self._cuts:  # bisection in C: called every step
+            v = x[index] % TWO_PI if periodic else x[index]
+            op += ops[bisect.bisect(cuts, v)]
+        return op
 
-    def switched(self, x: np.ndarray, active: int | None) -> int:
+    def switched(self, x: Sequence[float], active: int | None) -> int:
         """Nearest op, but keep each active value while within its hysteresis margin."""
-        if active is None:
+        if active is None or not any(self.hysteresis):
             return self.nearest(x)
         cur = self.unflat(active)
         idx = []
@@ -171,7 +204,7 @@ class OperatingGrid:
             idx.append(c if a.distance(v, c) <= d + h else i)
         return self.flat(idx)
 
-    def weights(self, x: np.ndarray) -> list[tuple[int, float]]:
+    def weights(self, x: Sequence[float]) -> list[tuple[int, float]]:
         """Multilinear interpolation: ``[(op index, weight)]`` with weights summing to 1."""
         out: list[tuple[list[int], float]] = [([], 1.0)]
         for a in self.axes:
