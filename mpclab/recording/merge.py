@@ -21,6 +21,9 @@ import re
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.rerun import RRD
@@ -82,13 +85,14 @@ def merge(rrds: Sequence[Path], out: Path, labels: Sequence[str] | None = None) 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(SWEEP_APP_ID, recording_id=uuid.uuid4())
-    rec.save(out, default_blueprint=ent.sweep_blueprint(labels, states, inputs))
+    bounds = _bounds([c for chunks in runs for c in chunks])
+    rec.save(out, default_blueprint=ent.sweep_blueprint(labels, states, inputs, bounds))
     rec.send_recording_name(f"sweep of {len(rrds)} runs")
     for label, chunks in zip(labels, runs, strict=True):
         rec.send_chunks([c.with_entity_path(f"/{label}{c.entity_path}") for c in chunks])
         # legends of the overlaid panels name the run
         for path in sorted({c.entity_path for c in chunks}):
-            if path.startswith(f"/{ent.STATES}/") or path.startswith(f"/{ent.INPUTS}/"):
+            if path.startswith("/series/"):
                 leaf = path.split("/", 3)[-1]
                 rec.log(f"/{label}{path}", rr.SeriesLines(names=f"{label}: {leaf}"), static=True)
     rec.flush()
@@ -132,6 +136,34 @@ def _labels_under(paths: Sequence[str], root: str) -> list[str]:
             if parts[depth] not in labels:
                 labels.append(parts[depth])
     return labels
+
+
+#: static and per-step entities whose points outline a run's map
+_OUTLINE = {f"/{e}" for e in (ent.START, ent.GOAL, ent.OBSTACLES, ent.REFERENCE_PATH, ent.PATH)}
+
+
+def _bounds(chunks: Sequence[Any]) -> tuple[float, float, float, float] | None:
+    """``(x_min, x_max, y_min, y_max)`` over every run's start, goal, obstacles, path, 10 % out."""
+    pts: list[np.ndarray] = []
+    for c in chunks:
+        if c.entity_path not in _OUTLINE:
+            continue
+        data = c.to_record_batch().to_pydict()
+        for key in ("Arrows2D:origins", "Points2D:positions", "LineStrips2D:strips"):
+            for row in data.get(key, []):
+                if row:
+                    pts.append(np.asarray(row, dtype=float).reshape(-1, 2))
+        for centres, radii in zip(data.get("Points2D:positions", []),
+                                  data.get("Points2D:radii", []), strict=False):
+            if centres and radii:  # obstacle discs: their rims
+                P, r = np.asarray(centres).reshape(-1, 2), np.asarray(radii)[:, None]
+                pts += [P - r, P + r]
+    if not pts:
+        return None
+    P = np.concatenate(pts)
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    m = 0.1 * max(float(np.linalg.norm(hi - lo)), 0.1)
+    return lo[0] - m, hi[0] + m, lo[1] - m, hi[1] + m
 
 
 def _overrides(run_dir: Path) -> list[str]:

@@ -126,16 +126,17 @@ def run_blueprint(
 
 
 def sweep_blueprint(
-    prefixes: Sequence[str], states: Sequence[str], inputs: Sequence[str]
+    prefixes: Sequence[str], states: Sequence[str], inputs: Sequence[str],
+    bounds: Sequence[float] | None = None,
 ) -> rrb.Blueprint:
     """A merged sweep: one map per run side by side above time series overlaying the runs."""
     import rerun.blueprint as rrb
 
-    maps = [map_view(f"/{p}", name=p) for p in prefixes]
+    maps = [map_view(f"/{p}", name=p, bounds=bounds) for p in prefixes]
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Grid(*maps) if len(maps) > 1 else maps[0],
-            rrb.Grid(*series_views(states, inputs, [f"/{p}" for p in prefixes])),
+            rrb.Grid(*series_views(states, inputs, [f"/{p}" for p in prefixes]), grid_columns=4),
             rrb.TextLogView(origin="/", contents=[f"/{p}/log/**" for p in prefixes],
                             name="events"),
             row_shares=[3, 2, 1],
