@@ -4,30 +4,42 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from mpclab.registry import register_all
 
 register_all()  # every component's schema must be in the ConfigStore before composing
+# Ray (hydra/launcher=ray_cluster) would otherwise re-create a driver started by `uv run` in
+# a new virtual environment per worker, without the `ray` extra; workers use this Python.
+os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 log = logging.getLogger("mpclab")
 
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> dict:
+    """One run; in a multirun, one job that resumes or records its error as a row."""
     from mpclab.experiment import run_experiment
 
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    result = run_experiment(cfg, out_dir)
-    s = result.summary
+    hc = HydraConfig.get()
+    out_dir = Path(hc.runtime.output_dir)
+    if hc.mode == RunMode.MULTIRUN:
+        from mpclab.sweeps.jobs import run_job
+
+        s = run_job(cfg, out_dir, list(hc.overrides.task), dict(hc.runtime.choices))
+    else:
+        s = run_experiment(cfg, out_dir).summary
     keys = ("status", "arrival_time_s", "n_steps", "compute_median_ms", "rtf", "solver_failures")
     log.info("%s", json.dumps({k: s.get(k) for k in keys}))
     log.info("run record: %s", out_dir)
+    return s
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ class Config:
     name: str = "run"          # experiment name: run records and output folders carry it
     seed: int = 0              # every random draw of a run derives from it
     progress: bool = True      # a progress line for interactive runs
+    resume: bool = True        # a multirun skips jobs whose run record is complete
     figures: FiguresConf = field(default_factory=FiguresConf)
     plant: Any = MISSING
     controller: Any = MISSING

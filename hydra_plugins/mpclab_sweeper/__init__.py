@@ -1,0 +1,1 @@
+"""mpclab's Hydra plugin: the tolerant sweeper (see tolerant_sweeper.py)."""

@@ -1,0 +1,152 @@
+"""The Hydra callback of every multirun: progress while it runs, tables when it ends.
+
+Registered in ``conf/config.yaml`` under ``hydra.callbacks.sweep``. Hydra calls
+``on_multirun_start`` and ``on_multirun_end`` in the process that launches the sweep and
+``on_job_end`` where each job runs (a joblib or Ray worker), so progress goes through two
+small files in ``<sweep dir>/.mpclab/``: ``sweep.json`` (job count, start time) and
+``progress.jsonl`` (one line per finished job, appended atomically).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.experimental.callback import Callback
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger("mpclab.sweep")
+
+STATE_DIR = ".mpclab"
+SWEEP_FILE = "sweep.json"
+PROGRESS_FILE = "progress.jsonl"
+
+
+def count_jobs(config: DictConfig) -> int | None:
+    """How many jobs the basic sweeper makes of this multirun's overrides (None if unknown)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.utils import get_class
+
+    sweeper = config.hydra.sweeper
+    try:
+        if not issubclass(get_class(sweeper._target_), BasicSweeper):
+            return None
+    except Exception:  # noqa: BLE001  (an unknown sweeper: no total)
+        return None
+    params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]
+    params += list(OmegaConf.to_container(config.hydra.overrides.task))
+    try:
+        overrides = OverridesParser.create().parse_overrides(params)
+        batches = BasicSweeper.split_arguments(overrides, None)
+    except Exception:  # noqa: BLE001  (a sweep Hydra will report on; progress just has no total)
+        return None
+    return sum(len(b) for b in batches)
+
+
+def _clock(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def progress_line(
+    done: int, total: int | None, failed: int, resumed: int, elapsed: float,
+) -> str:
+    """``'5/16 jobs done, 1 failed, 2 resumed | elapsed 0:00:12 | about 0:00:25 left'``."""
+    head = f"{done}/{total}" if total else f"{done}"
+    parts = [f"{head} jobs done", f"{failed} failed"]
+    if resumed:
+        parts.append(f"{resumed} resumed")
+    line = ", ".join(parts) + f" | elapsed {_clock(elapsed)}"
+    ran = done - resumed
+    if total and ran > 0 and done < total:
+        line += f" | about {_clock(elapsed / ran * (total - done))} left"
+    return line
+
+
+def job_outcome(job_return: JobReturn) -> tuple[str, bool]:
+    """``(status, resumed)`` of a finished job, from what its task function returned."""
+    if job_return.status != JobStatus.COMPLETED:
+        return "error", False
+    value = job_return.return_value
+    if not isinstance(value, dict):
+        return "unknown", False
+    return str(value.get("status")), bool(value.get("skipped"))
+
+
+class SweepCallback(Callback):
+    """Progress lines during a multirun; ``mpclab.tables`` over the sweep folder at its end.
+
+    Hydra passes its own keyword arguments (``config_name``, ...) to every hook; they are
+    accepted and not used.
+
+    Parameters
+    ----------
+    figure
+        Draw ``arrival_vs_compute.png`` in the sweep folder.
+    x
+        Its x axis: ``step_ms`` or ``rtf`` (see :class:`mpclab.tables.XAxis`).
+    """
+
+    def __init__(self, figure: bool = True, x: str = "step_ms") -> None:
+        from mpclab.tables import XAxis
+
+        self.figure = figure
+        self.x = XAxis(x)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        state = Path(config.hydra.sweep.dir) / STATE_DIR
+        state.mkdir(parents=True, exist_ok=True)
+        total = count_jobs(config)
+        (state / SWEEP_FILE).write_text(json.dumps({"total": total, "start": time.time()}))
+        (state / PROGRESS_FILE).write_text("")
+        log.info("sweep of %s jobs into %s", total or "?", config.hydra.sweep.dir)
+
+    def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
+        if config.hydra.mode != RunMode.MULTIRUN:
+            return
+        state = Path(config.hydra.sweep.dir) / STATE_DIR
+        try:
+            meta = json.loads((state / SWEEP_FILE).read_text())
+        except (OSError, ValueError):
+            return  # not started by this callback (e.g. a job run by hand)
+        status, resumed = job_outcome(job_return)
+        entry = json.dumps({"job": config.hydra.job.num, "status": status, "resumed": resumed})
+        fd = os.open(state / PROGRESS_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+        try:
+            os.write(fd, (entry + "\n").encode())  # one small write: atomic with O_APPEND
+        finally:
+            os.close(fd)
+        rows = [json.loads(x) for x in (state / PROGRESS_FILE).read_text().splitlines() if x]
+        log.info("sweep: %s", progress_line(
+            len(rows), meta["total"], sum(r["status"] == "error" for r in rows),
+            sum(r["resumed"] for r in rows), time.time() - meta["start"],
+        ))
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from mpclab import tables
+
+        sweep_dir = Path(config.hydra.sweep.dir)
+        state = sweep_dir / STATE_DIR
+        try:
+            meta = json.loads((state / SWEEP_FILE).read_text())
+            elapsed = time.time() - meta["start"]
+        except (OSError, ValueError):
+            elapsed = float("nan")
+        df = tables.collect([sweep_dir], root=sweep_dir)
+        if df.empty:
+            log.warning("sweep: no run records in %s", sweep_dir)
+            return
+        paths = tables.write_tables(df, sweep_dir, figure=self.figure, x=self.x)
+        counts = df["status"].value_counts().to_dict()
+        log.info("sweep finished: %d runs in %s, %s", len(df), _clock(elapsed),
+                 ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
+        log.info("sweep by backend and scenario:\n%s",
+                 tables.markdown_table(tables.group_table(df)))
+        log.info("sweep files: %s", ", ".join(str(p) for p in paths.values()))

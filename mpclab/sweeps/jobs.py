@@ -1,0 +1,122 @@
+"""One multirun job: resume a complete run record, or run it and record any error as a row.
+
+A job's record is *complete* when its ``summary.json`` exists, its status is not ``error``
+and it was written for the same overrides (``summary["overrides"]``, ignoring ``resume``).
+Hydra numbers jobs by their position in the sweep, so the same sweep command with the same
+sweep folder maps every job to the same folder again.
+"""
+
+from __future__ import annotations
+
+import logging
+import traceback
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+from mpclab import record
+from mpclab.tables import override_key
+
+log = logging.getLogger("mpclab.sweep")
+
+#: overrides that change how a sweep runs but not what a job computes
+IGNORED_KEYS = ("resume", "progress")
+
+
+def job_overrides(overrides: Sequence[str]) -> list[str]:
+    """The overrides that define what a job computes, in their given order."""
+    return [o for o in overrides if override_key(o) not in IGNORED_KEYS]
+
+
+def complete_summary(out_dir: Path, overrides: Sequence[str]) -> dict[str, Any] | None:
+    """The summary of a complete run record for ``overrides`` in ``out_dir``, else None."""
+    path = Path(out_dir) / record.SUMMARY
+    if not path.is_file():
+        return None
+    try:
+        summary = record.read_summary(out_dir)
+    except ValueError:  # a torn or hand-edited file: run again
+        return None
+    if summary.get("status") == "error":
+        return None
+    if job_overrides(summary.get("overrides") or []) != job_overrides(overrides):
+        return None
+    return summary
+
+
+def error_message(exc: BaseException) -> str:
+    """The root cause first, then the wrapper that says where (Hydra wraps both)."""
+    root = exc
+    while root.__cause__ is not None:
+        root = root.__cause__
+
+    def line(e: BaseException) -> str:
+        return f"{type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''}"
+
+    return line(root) if root is exc else f"{line(root)} (in {line(exc)})"
+
+
+def error_summary(
+    exc: BaseException, overrides: Sequence[str], cfg: DictConfig | None = None,
+    choices: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The run-record summary of a job that raised ``exc`` before or while running.
+
+    Names come from ``cfg`` and the Hydra group ``choices`` when they are known.
+    """
+    named = {**(choices or {}), **dict(o.lstrip("+").split("=", 1) for o in overrides if "=" in o)}
+    name = cfg.get("name") if cfg is not None else None
+    seed = cfg.get("seed") if cfg is not None else named.get("seed")
+    return {
+        "experiment": name,
+        "plant": named.get("plant"),
+        "controller": named.get("controller"),
+        "scenario": named.get("scenario"),
+        "seed": int(seed) if str(seed).lstrip("-").isdigit() else None,
+        "status": "error",
+        "arrived": False,
+        "arrival_time_s": None,
+        "n_steps": 0,
+        "error": error_message(exc),
+        "overrides": list(overrides),
+        "versions": record.versions(),
+    }
+
+
+def run_job(
+    cfg: DictConfig, out_dir: Path, overrides: Sequence[str], choices: dict[str, Any],
+) -> dict[str, Any]:
+    """Run one multirun job into ``out_dir`` and return its summary; never raises ``Exception``.
+
+    Parameters
+    ----------
+    cfg
+        The job's composed config (``resume`` read from it).
+    out_dir
+        The job's Hydra output folder.
+    overrides
+        The job's task overrides (``hydra.overrides.task``), stored in the summary.
+    choices
+        Hydra's group choices (``hydra.runtime.choices``), naming components in error rows.
+    """
+    from mpclab.experiment import run_experiment
+
+    overrides = list(overrides)
+    if cfg.get("resume", True):
+        done = complete_summary(out_dir, overrides)
+        if done is not None:
+            log.info("resume: %s is complete (%s), skipped", out_dir, done.get("status"))
+            return {**done, "skipped": True}
+    try:
+        summary = run_experiment(cfg, out_dir).summary
+    except Exception as exc:  # the sweep goes on; the row says what happened
+        log.error("job failed: %s\n%s", exc, traceback.format_exc())
+        summary = error_summary(exc, overrides, cfg, choices)
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        record.write_summary(out_dir, summary)  # an error row has no steps to write
+        return summary
+    summary = {**summary, "overrides": overrides}
+    record.write_summary(out_dir, summary)  # again, now naming its overrides (for resume)
+    return summary

@@ -1,0 +1,85 @@
+"""Multirun sweeps end to end through ``python -m mpclab -m``: tables, figure, faults, resume.
+
+Each sweep is a real Hydra multirun in a subprocess (the joblib launcher with its workers),
+shortened by ``+ci=smoke``. ``test_sweep_jobs.py`` checks resume rules in-process.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+from conftest import ROOT, compose_cfg
+from hydra.errors import HydraException
+
+pytestmark = pytest.mark.slow
+
+
+def sweep(*overrides: str, timeout: float = 300) -> str:
+    """Run ``python -m mpclab -m OVERRIDES``; return its console output (fails on exit != 0)."""
+    cmd = [sys.executable, "-m", "mpclab", "-m", *overrides]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    return out
+
+
+def backend_axis() -> str:
+    """Two backends on the car: CVXPY and CasADi if CasADi can run car_cvxpy, else two QP
+    solvers of the CVXPY backend."""
+    try:
+        compose_cfg(["+experiment=car_cvxpy", "controller=casadi"])
+    except HydraException:
+        return "controller.solver=CLARABEL,OSQP"
+    return "controller=cvxpy,casadi"
+
+
+def test_two_backends_three_seeds(tmp_path: Path) -> None:
+    axis = backend_axis()
+    out = sweep("+experiment=car_cvxpy", "+ci=smoke", "scenario.t_max=4.0", axis, "seed=0,1,2",
+                "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}")
+    df = pd.read_parquet(tmp_path / "summary.parquet")
+    assert len(df) == 6
+    assert df["backend"].nunique() == 2 and df.groupby("backend")["seed"].nunique().eq(3).all()
+    assert (df["status"] != "error").all(), df[["backend", "error"]]
+    assert (tmp_path / "arrival_vs_compute.png").stat().st_size > 0
+    assert len(pd.read_csv(tmp_path / "summary.csv")) == 6
+    assert "6/6 jobs done, 0 failed" in out
+    # each row is its job's summary.json, and its parameters are the job's overrides
+    for row in df.itertuples():
+        job = tmp_path / row.job
+        summary = json.loads((job / "summary.json").read_text())
+        assert (row.status, row.seed, row.n_steps) == (
+            summary["status"], summary["seed"], summary["n_steps"])
+        assert f"seed={row.seed}" in yaml.safe_load((job / ".hydra/overrides.yaml").read_text())
+    # from rest at (-10, 10), with |a| <= 10 m/s^2, 1 m from the origin is >= 13.14 m away:
+    # no arrival before sqrt(2 * 13.14 / 10) = 1.62 s
+    arrived = df[df["status"] == "arrived"]
+    assert len(arrived) >= 3 and (arrived["arrival_time_s"] >= 1.62).all()
+
+
+def test_failed_jobs_are_rows_and_the_same_sweep_resumes(tmp_path: Path) -> None:
+    # job 1: the controller refuses horizon -1 when built; job 2: the schema rejects "ten"
+    args = ("+experiment=car_cvxpy", "+ci=smoke", "controller.horizon=10,-1,ten",
+            f"hydra.sweep.dir={tmp_path}")
+    out = sweep(*args)
+    df = pd.read_parquet(tmp_path / "summary.parquet").set_index("job")
+    assert len(df) == 3 and "3/3 jobs done, 2 failed" in out
+    assert df.loc["0", "status"] == "timeout" and df.loc["0", "n_steps"] == 10
+    assert df.loc["1", "status"] == "error"
+    assert df.loc["1", "error"].startswith("ValueError: horizon must be >= 1, got -1")
+    assert df.loc["2", "status"] == "error" and "'ten'" in df.loc["2", "error"]
+    assert df.loc["2", "controller"] == "cvxpy"  # named even though it never composed
+    steps = tmp_path / "0" / "steps.parquet"
+    before = steps.stat().st_mtime_ns
+    # the same sweep again (here launched without workers): the complete job is skipped,
+    # the failed ones run again
+    out = sweep(*args, "hydra/launcher=basic")
+    assert "3/3 jobs done, 2 failed, 1 resumed" in out
+    assert steps.stat().st_mtime_ns == before
+    assert len(pd.read_parquet(tmp_path / "summary.parquet")) == 3

@@ -1,0 +1,150 @@
+"""Aggregation of run records into tables: mixed sweeps, missing files, grouped statistics.
+
+The run records here are written by hand, so every expected number is known independently
+of mpclab: pooled step times are checked against numpy on the same arrays.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from mpclab import tables
+
+
+def _run(
+    job_dir: Path, overrides: list[str], summary: dict | None, solve_ms: list[float] | None,
+) -> None:
+    """A Hydra-like job folder: .hydra/overrides.yaml, summary.json, steps.parquet."""
+    (job_dir / ".hydra").mkdir(parents=True)
+    (job_dir / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+    if summary is not None:
+        (job_dir / "summary.json").write_text(json.dumps(summary))
+    if solve_ms is not None:
+        n = len(solve_ms)
+        pd.DataFrame({
+            "t": np.arange(n + 1) * 0.1,
+            "solve_time_s": [*(np.asarray(solve_ms) / 1e3), np.nan],
+            "status": ["optimal"] * n + ["final"],
+        }).to_parquet(job_dir / "steps.parquet")
+
+
+def _summary(controller: str, seed: int, status: str, arrival: float | None, **extra) -> dict:
+    return {
+        "experiment": "car", "plant": "kinematic_car", "controller": controller,
+        "scenario": "to_origin", "seed": seed, "status": status, "arrived": status == "arrived",
+        "arrival_time_s": arrival, "compute_median_ms": 2.0, "rtf": 0.02, "error": None,
+        "final_state": {"px": 0.1, "py": -0.2}, "versions": {"numpy": "x"}, **extra,
+    }
+
+
+#: solve times (ms) of the hand-made runs, by (controller, seed)
+SOLVE = {
+    ("cvxpy", 0): [1.0, 2.0, 3.0], ("cvxpy", 1): [4.0, 5.0],
+    ("casadi", 0): [10.0, 30.0, 20.0, 40.0], ("casadi", 1): [50.0],
+}
+
+
+@pytest.fixture
+def outputs(tmp_path: Path) -> Path:
+    """Two sweeps with different override keys, plus broken and unreadable job folders."""
+    a = tmp_path / "multirun" / "a"
+    a.mkdir(parents=True)
+    (a / "multirun.yaml").write_text("hydra: {}\n")
+    jobs = [("cvxpy", 1, 3.0), ("cvxpy", 0, 2.9), ("casadi", 0, 4.0), ("casadi", 1, None)]
+    for num, (ctrl, seed, arrival) in enumerate(jobs):
+        status = "arrived" if arrival is not None else "timeout"
+        _run(a / str(num), [f"controller={ctrl}", f"seed={seed}"],
+             _summary(ctrl, seed, status, arrival), SOLVE[(ctrl, seed)])
+    # a job whose process died before writing summary.json
+    _run(a / "4", ["controller=cvxpy", "seed=2"], None, None)
+    choices = {"plant": "kinematic_car", "controller": "cvxpy", "scenario": "to_origin"}
+    (a / "4" / ".hydra" / "hydra.yaml").write_text(
+        yaml.safe_dump({"hydra": {"runtime": {"choices": choices}}}))
+    # an error row written by the sweep (no steps at all)
+    _run(a / "5", ["controller=cvxpy", "seed=3"],
+         {**_summary("cvxpy", 3, "error", None), "error": "ValueError: horizon must be >= 1"},
+         None)
+    b = tmp_path / "multirun" / "b"
+    b.mkdir(parents=True)
+    (b / "multirun.yaml").write_text("hydra: {}\n")
+    for num, horizon in enumerate([20, 5]):
+        _run(b / str(num), [f"controller.horizon={horizon}"],
+             _summary("cvxpy", 0, "arrived", 3.5 if horizon == 5 else 3.2), [1.0])
+    (b / "2" / ".hydra").mkdir(parents=True)
+    (b / "2" / "summary.json").write_text("{not json")
+    return tmp_path
+
+
+def test_collect_mixed_sweeps_and_missing_files(outputs: Path) -> None:
+    df = tables.collect([outputs], root=outputs)
+    assert len(df) == 9
+    assert df.attrs["params"] == ["controller", "seed", "controller.horizon"]
+    # sweep a sorted by its parameters (controller, then seed), not by job number
+    a = df[df["sweep_dir"] == "multirun/a"]
+    assert list(zip(a["controller"], a["seed"], strict=True)) == [
+        ("casadi", 0), ("casadi", 1), ("cvxpy", 0), ("cvxpy", 1), ("cvxpy", 2), ("cvxpy", 3),
+    ]
+    assert list(a["job"]) == ["2", "3", "1", "0", "4", "5"]
+    missing = a[a["seed"] == 2].iloc[0]
+    assert missing["status"] == tables.INCOMPLETE and "no summary.json" in missing["error"]
+    assert missing["scenario"] == "to_origin"  # from Hydra's record of the job
+    assert a[a["seed"] == 3].iloc[0]["error"].startswith("ValueError")
+    b = df[df["sweep_dir"] == "multirun/b"]
+    assert list(b["controller.horizon"].iloc[:2]) == [5, 20]  # numeric, sorted numerically
+    assert b["controller.horizon"].isna().iloc[2]  # the unreadable record has no overrides
+    assert b.iloc[2]["status"] == tables.INCOMPLETE
+    assert "unreadable summary.json" in b.iloc[2]["error"]
+    assert a["controller.horizon"].isna().all()  # a key sweep a never overrode
+    assert "final_state.px" in df and "versions" not in df
+    assert df["backend"].tolist() == df["controller"].fillna("?").tolist()
+
+
+def test_group_table_pools_step_times(outputs: Path) -> None:
+    df = tables.collect([outputs / "multirun" / "a"])
+    groups = tables.group_table(df).set_index("backend")
+    cas = groups.loc["casadi"]
+    pooled = np.array(SOLVE[("casadi", 0)] + SOLVE[("casadi", 1)])
+    assert cas["runs"] == 2 and cas["arrived"] == 1 and cas["success_rate"] == 0.5
+    assert cas["arrival_median_s"] == 4.0
+    assert cas["step_median_ms"] == pytest.approx(np.median(pooled))
+    assert cas["step_p95_ms"] == pytest.approx(np.percentile(pooled, 95))
+    cvx = groups.loc["cvxpy"]
+    assert (cvx["runs"], cvx["arrived"], cvx["errors"]) == (4, 2, 1)
+    assert cvx["arrival_median_s"] == pytest.approx(np.median([3.0, 2.9]))
+    pooled = np.array(SOLVE[("cvxpy", 0)] + SOLVE[("cvxpy", 1)])
+    assert cvx["step_p95_ms"] == pytest.approx(np.percentile(pooled, 95))
+
+
+def test_backend_names_the_solver_when_it_varies(tmp_path: Path) -> None:
+    for num, solver in enumerate(["OSQP", "CLARABEL"]):
+        _run(tmp_path / str(num), [f"controller.solver={solver}"],
+             _summary("cvxpy", 0, "arrived", 3.0), [1.0])
+    df = tables.collect([tmp_path])
+    assert sorted(df["backend"]) == ["cvxpy:CLARABEL", "cvxpy:OSQP"]
+
+
+def test_command_writes_every_file(outputs: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = outputs / "tables"
+    assert tables.main([str(outputs / "multirun"), "--out", str(out), "--x", "rtf"]) == 0
+    for name in tables.FILES.values():
+        assert (out / name).is_file(), name
+    back = pd.read_parquet(out / "summary.parquet")
+    assert len(back) == 9 and len(pd.read_csv(out / "summary.csv")) == 9
+    assert (out / "arrival_vs_compute.png").read_bytes()[:4] == b"\x89PNG"
+    md = (out / "summary.md").read_text()
+    assert "## By backend and scenario" in md and "## Runs (9)" in md
+    assert "| casadi " in md and "nan" not in md
+    assert "casadi" in capsys.readouterr().out
+
+
+def test_command_refuses_an_empty_folder(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit):
+        tables.main([str(tmp_path)])
+    with pytest.raises(FileNotFoundError, match="no such folder"):
+        tables.collect([tmp_path / "nope"])
