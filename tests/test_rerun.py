@@ -7,6 +7,7 @@ reference, m-line, supervisor modes); the merge test checks a two-run sweep file
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from collections import defaultdict
@@ -207,12 +208,17 @@ def test_merge_puts_each_run_under_its_prefix(run_cfg, tmp_path):
 
 def test_labels_from_differing_overrides(tmp_path):
     rrds = []
-    for i, over in enumerate(["controller=cvxpy", "controller=casadi"]):
+    for i, over in enumerate(["controller=cvxpy", "controller=casadi", "controller=nn"]):
         d = tmp_path / str(i)
-        (d / ".hydra").mkdir(parents=True)
-        (d / ".hydra" / "overrides.yaml").write_text(f"- +experiment=zumo\n- {over}\n")
+        d.mkdir()
+        if i < 2:  # Hydra's record of the overrides, or the sweep's summary.json
+            (d / ".hydra").mkdir()
+            (d / ".hydra" / "overrides.yaml").write_text(f"- +experiment=zumo\n- {over}\n")
+        else:
+            (d / "summary.json").write_text(json.dumps(
+                {"experiment": "zumo", "overrides": ["+experiment=zumo", over]}))
         rrds.append(d / RRD)
-    assert run_labels(rrds) == ["controller_cvxpy", "controller_casadi"]
+    assert run_labels(rrds) == ["controller_cvxpy", "controller_casadi", "controller_nn"]
 
 
 def test_recorder_config():

@@ -9,8 +9,9 @@ the runs. Usage::
     uv run rerun outputs/multirun/NAME/TIME/sweep.rrd
 
 A folder argument stands for every ``run.rrd`` below it. A run's prefix is made from the
-Hydra overrides (``.hydra/overrides.yaml``) that differ between the runs, e.g.
-``controller_casadi``; without them, from the run folder's name.
+Hydra overrides (``.hydra/overrides.yaml``, else the ``overrides`` in ``summary.json``) that
+differ between the runs, e.g. ``controller_casadi``; without them, from the experiment and
+the run folder's name.
 """
 
 from __future__ import annotations
@@ -167,12 +168,16 @@ def _bounds(chunks: Sequence[Any]) -> tuple[float, float, float, float] | None:
 
 
 def _overrides(run_dir: Path) -> list[str]:
+    """The run's Hydra overrides: ``.hydra/overrides.yaml``, else ``summary.json``'s list."""
     path = run_dir / ".hydra" / "overrides.yaml"
-    if not path.is_file():
-        return []
-    from omegaconf import OmegaConf
+    if path.is_file():
+        from omegaconf import OmegaConf
 
-    return [str(o) for o in OmegaConf.load(path)]
+        return [str(o) for o in OmegaConf.load(path)]
+    summary = run_dir / "summary.json"
+    if summary.is_file():
+        return [str(o) for o in json.loads(summary.read_text()).get("overrides") or []]
+    return []
 
 
 def _fallback_name(rrd: Path) -> str:
