@@ -1,0 +1,57 @@
+"""One multirun job in-process: an exception becomes an error row; resume skips complete records."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from conftest import compose_cfg
+from mpclab.sweeps import jobs
+
+BASE = ["+experiment=car_cvxpy", "+ci=smoke"]
+CHOICES = {"plant": "kinematic_car", "controller": "cvxpy", "scenario": "car_to_origin"}
+
+
+def run(out: Path, *overrides: str) -> dict:
+    return jobs.run_job(compose_cfg([*BASE, *overrides]), out, [*BASE, *overrides], CHOICES)
+
+
+def mtime(out: Path) -> int:
+    return (out / "steps.parquet").stat().st_mtime_ns
+
+
+def test_a_raising_job_writes_an_error_row(tmp_path: Path) -> None:
+    s = run(tmp_path, "controller.horizon=-1")
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert s["status"] == on_disk["status"] == "error"
+    assert on_disk["error"].startswith("ValueError: horizon must be >= 1, got -1")
+    assert on_disk["controller"] == "cvxpy" and on_disk["experiment"] == "car_cvxpy"
+    assert on_disk["overrides"] == [*BASE, "controller.horizon=-1"]
+    assert not (tmp_path / "steps.parquet").exists()
+
+
+def test_resume_skips_only_a_complete_record_of_the_same_job(tmp_path: Path) -> None:
+    first = run(tmp_path, "seed=1")
+    assert first["status"] != "error" and "skipped" not in first
+    t0 = mtime(tmp_path)
+    again = run(tmp_path, "seed=1", "progress=true")  # how it runs is not what it computes
+    assert again["skipped"] and mtime(tmp_path) == t0
+    assert {k: v for k, v in again.items() if k != "skipped"} == json.loads(
+        (tmp_path / "summary.json").read_text())
+    forced = run(tmp_path, "seed=1", "resume=false")
+    assert "skipped" not in forced and mtime(tmp_path) > t0
+    t1 = mtime(tmp_path)
+    other = run(tmp_path, "seed=2")  # a different job in the same folder: run, not reused
+    assert "skipped" not in other and other["seed"] == 2 and mtime(tmp_path) > t1
+
+
+def test_an_error_row_is_run_again(tmp_path: Path) -> None:
+    assert run(tmp_path, "controller.horizon=-1")["status"] == "error"
+    # the same folder and overrides, the cause fixed (as after editing a config)
+    s = jobs.run_job(compose_cfg(BASE), tmp_path, [*BASE, "controller.horizon=-1"], CHOICES)
+    assert s["status"] != "error" and (tmp_path / "steps.parquet").is_file()
+
+
+def test_a_torn_summary_is_not_complete(tmp_path: Path) -> None:
+    (tmp_path / "summary.json").write_text('{"status": "arr')
+    assert jobs.complete_summary(tmp_path, BASE) is None
