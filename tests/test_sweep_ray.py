@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
 from test_sweep import sweep
 
 pytestmark = pytest.mark.slow
