@@ -115,15 +115,14 @@ class RerunRecorder(Recorder):
         self._mode: str | None = None
         self._status: str | None = None
         self._k = 0
-        key_states = tuple(plant.plot_states) or self._states
+        self._key_states = tuple(plant.plot_states) or self._states
         reference = _reference_table(scen)
-        box = _scene_box(scen, self._pos, reference)
-        extent = max(float(np.hypot(box[1] - box[0], box[3] - box[2])), 0.1)
-        self._arrow = self.arrow_length or 0.06 * extent
+        x0, x1, y0, y1 = _scene_box(scen, self._pos, reference)
+        self._lo, self._hi = np.array([x0, y0]), np.array([x1, y1])
+        self._arrow = self.arrow_length or 0.06 * _diagonal(self._lo, self._hi)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
-        rec.save(self.path, default_blueprint=ent.run_blueprint(
-            key_states, self._inputs, bounds=_padded(box, extent)))
+        rec.save(self.path)  # the blueprint is sent at close, framing the whole path
         self._rec = rec
         name = self.cfg.get("name") if self.cfg is not None else None
         rec.send_recording_name(f"{name or 'run'} / {scen.name}")
@@ -142,6 +141,7 @@ class RerunRecorder(Recorder):
         b.heading.append(np.nan if self._head is None else x[self._head])
         b.segment.append(np.stack([self._last_pos, pos]))
         self._last_pos = pos.copy()
+        self._lo, self._hi = np.minimum(self._lo, pos), np.maximum(self._hi, pos)
         x_pred = np.asarray(step.x_pred, dtype=float)
         b.horizon.append(x_pred[:, self._pos] if x_pred.ndim == 2 else np.zeros((0, 2)))
         b.solve_time_ms.append(1e3 * float(step.info.get("solve_time_s", np.nan)))
@@ -190,6 +190,9 @@ class RerunRecorder(Recorder):
             return
         try:
             self._flush()
+            m = 0.08 * _diagonal(self._lo, self._hi)
+            bounds = (self._lo[0] - m, self._hi[0] + m, self._lo[1] - m, self._hi[1] + m)
+            self._rec.send_blueprint(ent.run_blueprint(self._key_states, self._inputs, bounds))
         finally:
             self._rec.flush()
             self._rec.disconnect()  # closes the file sink, which writes the footer
@@ -392,7 +395,5 @@ def _scene_box(scen: Any, pos: list[int], reference: Any) -> tuple[float, float,
     return float(x0), float(x1), float(y0), float(y1)
 
 
-def _padded(box: tuple[float, float, float, float], extent: float) -> tuple[float, ...]:
-    x0, x1, y0, y1 = box
-    m = 0.15 * extent
-    return x0 - m, x1 + m, y0 - m, y1 + m
+def _diagonal(lo: np.ndarray, hi: np.ndarray) -> float:
+    return max(float(np.linalg.norm(hi - lo)), 0.1)
