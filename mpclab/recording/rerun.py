@@ -19,8 +19,6 @@ Optional hooks used when present: ``scenario.rays(x)`` (ray end points ``(n, 2)`
 
 from __future__ import annotations
 
-import enum
-import functools
 import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -28,12 +26,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
-from omegaconf import DictConfig, OmegaConf
 
 from mpclab.errors import ConfigError
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.base import Recorder
+from mpclab.recording.rerun_config import config_document
 from mpclab.registry import component
 
 if TYPE_CHECKING:  # rerun is imported when a recording starts: importing it is slow
@@ -215,7 +212,7 @@ class RerunRecorder(Recorder):
             (ent.VEHICLE, vehicle.from_fields(colors=[_ORANGE], radii=[_THICK])),
         ):
             rec.log(path, style, static=True)
-        rec.log(ent.CONFIG, rr.TextDocument(self._config_text(),
+        rec.log(ent.CONFIG, rr.TextDocument(config_document(self.cfg),
                                             media_type=rr.MediaType.MARKDOWN), static=True)
         obstacles = np.asarray(scen.obstacles, dtype=float).reshape(-1, 3)
         rec.log(ent.OBSTACLES, rr.Points2D(obstacles[:, :2], radii=obstacles[:, 2],
@@ -303,19 +300,6 @@ class RerunRecorder(Recorder):
         h = np.asarray(heading, dtype=float)
         return self._arrow * np.stack([np.cos(h), np.sin(h)], axis=-1)
 
-    def _config_text(self) -> str:
-        cfg = self.cfg
-        if isinstance(cfg, DictConfig):
-            cfg = OmegaConf.to_container(cfg, resolve=True)
-        if cfg is None:
-            text = "# (no config given)\n"
-        else:  # PyYAML's C dumper: OmegaConf's own dump costs ~10x more per run
-            text = yaml.dump(_plain(cfg), Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper),
-                             sort_keys=False)
-        rows = "\n".join(f"| {k} | {v} |" for k, v in _versions().items())
-        return (f"# Run config\n\n```yaml\n{text}```\n\n# Versions\n\n"
-                f"| package | version |\n| --- | --- |\n{rows}\n")
-
 
 class _StepBuffer:
     """Per-step values waiting to be sent in columns."""
@@ -355,25 +339,6 @@ def _send_ragged(
     flat = np.concatenate(rows)
     data = list(flat) if field == "strips" else flat
     rec.send_columns(path, idx, archetype.columns(**{field: data}).partition(lengths))
-
-
-def _plain(value: Any) -> Any:
-    """Config data as YAML-safe builtins (enums by name)."""
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, enum.Enum):
-        return value.name
-    return value
-
-
-@functools.cache
-def _versions() -> dict[str, str]:
-    """Package versions, looked up once per process (reading package metadata is slow)."""
-    from mpclab.record import versions
-
-    return versions()
 
 
 def _reference_table(scen: Any) -> Any:
