@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -74,12 +75,18 @@ class _ProgressLine:
     def __init__(self, name: str) -> None:
         self.name = name
         self._last = -1
+        self._start = time.perf_counter()
 
     def __call__(self, t: float, t_max: float) -> None:
         pct = int(100 * t / t_max)
         if pct != self._last:
             self._last = pct
-            sys.stderr.write(f"\r{self.name}: t = {t:6.2f} s of at most {t_max:.1f} s")
+            wall = time.perf_counter() - self._start
+            left = wall / t * (t_max - t) if t > 0 else float("nan")  # if it runs to t_max
+            sys.stderr.write(
+                f"\r{self.name}: t = {t:6.2f} s of at most {t_max:.1f} s"
+                f" | elapsed {wall:5.1f} s, at most ~{left:5.1f} s left "
+            )
             sys.stderr.flush()
 
     def done(self) -> None:
