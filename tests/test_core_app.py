@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import CONF, ROOT, compose_cfg
 from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException, MissingConfigException
 from omegaconf.errors import ConfigKeyError
 
+from conftest import CONF, ROOT, compose_cfg
 from mpclab import record
 from mpclab.errors import ConfigError
 from mpclab.experiment import build_run

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from mpclab.approx.features import FeatureSet, n_features
-from mpclab.approx.mlp import MLP, activate
+from mpclab.approx.mlp import MLP, Activation, activate
 from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext
 from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
@@ -56,7 +56,9 @@ class NNController(Controller):
         self.min_range = float(meta.get("min_range", 0.05))
         if plant.heading is None:
             raise ConfigError("the NN controller needs a plant with a heading")
-        self._ip = [plant.state_index(s) for s in (*plant.position, plant.heading)]
+        ip = [plant.state_index(s) for s in (*plant.position, plant.heading)]
+        # a slice (a view, no copy) when the pose is stored contiguously, as for the Zumo
+        self._ip = slice(ip[0], ip[0] + 3) if ip == list(range(ip[0], ip[0] + 3)) else ip
         if self.mlp.n_out != plant.nu:
             raise ConfigError(f"NN weights give {self.mlp.n_out} outputs, plant "
                               f"{type(plant).__name__} has {plant.nu} inputs")
@@ -64,10 +66,15 @@ class NNController(Controller):
         w, b = list(self.mlp.weights), list(self.mlp.biases)
         w[-1] = w[-1] * self.mlp.out_scale[:, None]
         b[-1] = b[-1] * self.mlp.out_scale + self.mlp.out_offset
-        self._w = list(zip(w, b, strict=True))
+        # bias as the last column, inputs with a constant 1 appended: one product per layer
+        self._w = [np.ascontiguousarray(np.column_stack([wi, bi])) for wi, bi in zip(w, b,
+                                                                                    strict=True)]
         self._n_rays = self.mlp.n_in - n_features(self.features, 0)
-        self._z = np.zeros(self.mlp.n_in)  # feature buffer, filled in place each step
+        # buffers reused every step: the features and each layer's output, each with the 1
+        self._z = np.ones(self.mlp.n_in + 1)
+        self._h = [np.ones(wi.shape[0] + 1) for wi in w]
         self._no_plan = np.zeros((0, plant.nu))
+        self._tanh = self.mlp.activation is Activation.tanh
 
     def _features(self, x: FloatArray, ctx: StepContext) -> FloatArray:
         """The same vector as :func:`mpclab.approx.features.features`, built in place."""
@@ -77,7 +84,7 @@ class NNController(Controller):
                               f"gives {r.shape[0]}")
         z, n = self._z, self._n_rays
         p, g = x[self._ip], ctx.goal[self._ip]
-        inv = z[-n:]
+        inv = z[-n - 1 : -1]
         np.divide(1.0, r, out=inv)  # IEEE: 1/inf = 0, a ray that sees nothing
         if self.features is FeatureSet.study:
             z[0:3] = p
@@ -94,12 +101,18 @@ class NNController(Controller):
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         h = self._features(x, ctx)
         last = len(self._w) - 1
-        for i, (w, b) in enumerate(self._w):
-            h = w @ h + b
+        for i, w in enumerate(self._w):
+            out = self._h[i][:-1]  # the trailing 1 stays for the next layer's bias
+            np.dot(w, h, out=out)
             if i < last:
-                h = activate(self.mlp.activation, h)
-        total = float(h.sum())
-        if total != total:  # NaN from a degenerate input (e.g. a range of 0 inside a disc)
-            return self._failed("nan_output", x)
-        u = np.minimum(np.maximum(h, self.plant.u_lb), self.plant.u_ub)
+                if self._tanh:
+                    np.tanh(out, out=out)
+                else:
+                    out[:] = activate(self.mlp.activation, out)
+            h = self._h[i]
+        u = self._h[-1][:-1].copy()
+        for v in u:
+            if v != v:  # NaN from a degenerate input (e.g. a range of 0 inside a disc)
+                return self._failed("nan_output", x)
+        np.minimum(np.maximum(u, self.plant.u_lb, out=u), self.plant.u_ub, out=u)
         return ControlStep(u=u, x_pred=x[None, :], u_pred=self._no_plan, status="optimal")

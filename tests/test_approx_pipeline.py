@@ -1,0 +1,43 @@
+"""The NN pipeline end to end at smoke size: dataset, training, DAgger, evaluation files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from conftest import ROOT
+from mpclab.approx import dataset
+from mpclab.approx.mlp import MLP
+from mpclab.approx.pipeline import load_conf, main
+
+
+@pytest.mark.slow
+def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> None:
+    work, pub = tmp_path / "work", tmp_path / "pub"
+    main(["--config", str(ROOT / "conf/approx/zumo_nn_smoke.yaml"),
+          f"work_dir={work}", f"publish_dir={pub}"])
+    data, meta = dataset.read(work / "dataset.parquet")
+    assert meta["runs"] == 4 and meta["missing"] == [] and len(data) > 0
+    mlp = MLP.load(pub / "weights.npz")
+    assert mlp.sizes == [26, 16, 2] and mlp.meta["dagger_rounds"] == 1
+    assert "void mpclab_nn(" in (pub / "mpclab_nn.c").read_text()
+    history = pd.read_csv(pub / "training.csv")
+    assert list(history["round"]) == [0, 1]
+    assert history["rows"].iloc[1] > history["rows"].iloc[0]  # DAgger added labelled states
+    ev = json.loads((pub / "evaluation.json").read_text())
+    assert [r["controller"] for r in ev["held_out"]] == ["MPC expert", "NN"]
+    assert all(r["runs"] == 3 for r in ev["held_out"])
+    assert {r["layout"] for r in ev["layouts"]} == {"zumo_wall"}
+    assert (pub / "paths.png").stat().st_size > 10_000
+
+
+def test_pipeline_config_typos_are_errors() -> None:
+    from omegaconf.errors import ConfigKeyError
+
+    with pytest.raises(ConfigKeyError, match="hiden"):
+        load_conf(ROOT / "conf/approx/zumo_nn.yaml", ["train.hiden=[3]"])
+    conf = load_conf(ROOT / "conf/approx/zumo_nn.yaml", ["train.hidden=[64,64]"])
+    assert conf.train.hidden == [64, 64] and conf.data.runs == 1000
