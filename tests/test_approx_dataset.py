@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import compose_cfg
 from omegaconf import OmegaConf
 
+from conftest import compose_cfg
 from mpclab.approx import dataset
 from mpclab.experiment import run_experiment
 
