@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import compose_cfg
 
+from conftest import compose_cfg
 from mpclab.experiment import run_experiment
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
