@@ -3,9 +3,9 @@
 The m-line joins the start and the goal. In ``go_to_goal`` the robot uses the go-to-goal
 terms until a detected point blocks the way (it lies in a corridor toward the goal, closer
 than ``block_range``); then ``wall_follow`` (the right-hand-rule terms), remembering the hit
-point. It leaves ``wall_follow`` when it is back on the m-line (within ``mline_tolerance``)
-and closer to the goal than the hit point by ``leave_margin``. Which terms each mode switches
-on is configuration, not code.
+point. It leaves ``wall_follow`` when it is back on the m-line (within ``mline_tolerance``,
+or crossing it between two steps) closer to the goal than the hit point by ``leave_margin``.
+Which terms each mode switches on is configuration, not code.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class Bug2Conf:
     )
     block_range: float = 0.2
     corridor_half_width: float = 0.08
-    mline_tolerance: float = 0.03
+    mline_tolerance: float = 0.05
     leave_margin: float = 0.05
 
 
@@ -68,7 +68,7 @@ class Bug2(Supervisor):
         modes: Mapping[str, Sequence[str]] | None = None,
         block_range: float = 0.2,
         corridor_half_width: float = 0.08,
-        mline_tolerance: float = 0.03,
+        mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
     ) -> None:
         given = dict(modes or Bug2Conf().modes)
@@ -95,6 +95,7 @@ class Bug2(Supervisor):
         self.hit_point: FloatArray | None = None
         #: (t, x, y) of every switch into wall_follow
         self.hits: list[tuple[float, float, float]] = []
+        self._last: FloatArray | None = None
 
     def reset(self, x0: FloatArray, goal: FloatArray) -> None:
         s = np.asarray(x0, dtype=float)[self._ip]
@@ -104,6 +105,7 @@ class Bug2(Supervisor):
         self.mode = Bug2Mode.go_to_goal
         self.hit_point = None
         self.hits = []
+        self._last: FloatArray | None = None
 
     def update(
         self, t: float, x: FloatArray, detections: FloatArray
@@ -116,9 +118,10 @@ class Bug2(Supervisor):
                 self.mode = Bug2Mode.wall_follow
                 self.hit_point = p.copy()
                 self.hits.append((float(t), float(p[0]), float(p[1])))
-        elif self.can_leave(p):
+        elif self.can_leave(p, self._last):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
+        self._last = p
         return self.mode.value, self.modes[self.mode]
 
     # ------------------------------------------------------------------ geometry
@@ -136,19 +139,28 @@ class Bug2(Supervisor):
         reach = min(self.block_range, dist)
         return bool(np.any((along > 0) & (along < reach) & (across < self.corridor)))
 
-    def mline_distance(self, p: FloatArray) -> float:
-        """Distance from ``p`` to the m-line segment [m]."""
+    def mline_side(self, p: FloatArray) -> float:
+        """Signed distance from ``p`` to the line through start and goal (left > 0) [m]."""
         s, g = self._start, self._goal
         d = g - s
-        L2 = float(d @ d)
-        lam = 0.0 if L2 == 0 else float(np.clip((p - s) @ d / L2, 0.0, 1.0))
-        return float(np.linalg.norm(p - (s + lam * d)))
+        n = float(np.linalg.norm(d))
+        if n == 0:
+            return float(np.linalg.norm(p - s))
+        return float((d[0] * (p[1] - s[1]) - d[1] * (p[0] - s[0])) / n)
 
-    def can_leave(self, p: FloatArray) -> bool:
-        """On the m-line and closer to the goal than the hit point by ``leave_margin``."""
+    def can_leave(self, p: FloatArray, previous: FloatArray | None = None) -> bool:
+        """Back on the m-line, closer to the goal than the hit point by ``leave_margin``.
+
+        On the m-line means within ``mline_tolerance`` of it, or having crossed it since
+        ``previous`` (a step can jump over a narrow tolerance band).
+        """
         if self.hit_point is None:
             return True
         closer = np.linalg.norm(self._goal - p) < (
             np.linalg.norm(self._goal - self.hit_point) - self.leave_margin
         )
-        return bool(closer and self.mline_distance(p) < self.mline_tol)
+        side = self.mline_side(p)
+        on = abs(side) < self.mline_tol
+        if previous is not None:
+            on = on or side * self.mline_side(previous) < 0
+        return bool(closer and on)

@@ -33,9 +33,11 @@ class RandomLayoutConf:
     n_walls: int = 0
     length: list[float] = field(default_factory=lambda: [0.2, 0.5])    # [min, max] [m]
     region: list[float] = field(default_factory=lambda: [0.1, 0.7, 0.2, 1.0])  # x0 x1 y0 y1
-    keep_clear: float = 0.25    # wall discs' centres stay this far from start and goal [m]
+    keep_clear: float = 0.15    # wall discs' centres stay this far from the start [m]
+    goal_clear: float = 0.2     # ... and this far from the goal [m]
     min_gap: float = 0.35       # centre distance between discs of different walls [m]
-    max_tries: int = 500
+    across: bool = True         # the first wall crosses the start-goal segment
+    max_tries: int = 2000
 
 
 def wall(start: Sequence[float], end: Sequence[float], spacing: float, radius: float) -> FloatArray:
@@ -75,29 +77,40 @@ def random_walls(
     conf: Mapping[str, Any],
     radius: float,
     spacing: float,
-    keep_away: Sequence[Sequence[float]],
+    start: Sequence[float],
+    goal: Sequence[float],
 ) -> FloatArray:
     """``conf["n_walls"]`` random straight walls, clear of ``keep_away`` points and each other.
 
     A wall's centre is uniform in ``region``, its angle uniform, its length uniform in
-    ``length``; draws that come within ``keep_clear`` of a kept-away point or within
-    ``min_gap`` of another wall are redrawn (at most ``max_tries`` draws in all).
+    ``length``; draws that come within ``keep_clear`` of the start, ``goal_clear`` of the
+    goal or ``min_gap`` of another wall are redrawn (at most ``max_tries`` draws in all).
+    With ``across``, the first wall crosses the segment from start to goal (at 38..45 % of
+    the way, its middle third on the crossing) turned at most 30 degrees from square to it,
+    so that it blocks the straight way.
     """
     c = RandomLayoutConf(**dict(conf))
     if c.n_walls <= 0:
         return np.zeros((0, 3))
     x0, x1, y0, y1 = (float(v) for v in c.region)
-    away = np.asarray(keep_away, dtype=float).reshape(-1, 2)
+    a, b = np.asarray(start, dtype=float)[:2], np.asarray(goal, dtype=float)[:2]
     walls: list[FloatArray] = []
     for _ in range(int(c.max_tries)):
         if len(walls) == c.n_walls:
             break
-        centre = rng.uniform([x0, y0], [x1, y1])
-        ang = rng.uniform(0.0, np.pi)
         half = rng.uniform(*c.length) / 2
-        u = np.array([np.cos(ang), np.sin(ang)])
+        if c.across and not walls:
+            ang = np.arctan2(*(b - a)[::-1]) + np.pi / 2 + rng.uniform(-1, 1) * np.deg2rad(30)
+            u = np.array([np.cos(ang), np.sin(ang)])
+            centre = a + rng.uniform(0.38, 0.45) * (b - a) + rng.uniform(-1, 1) * half / 3 * u
+        else:
+            ang = rng.uniform(0.0, np.pi)
+            u = np.array([np.cos(ang), np.sin(ang)])
+            centre = rng.uniform([x0, y0], [x1, y1])
         w = wall(centre - half * u, centre + half * u, spacing, radius)
-        if _min_dist(w[:, :2], away) < c.keep_clear:
+        if _min_dist(w[:, :2], a[None]) < c.keep_clear:
+            continue
+        if _min_dist(w[:, :2], b[None]) < c.goal_clear:
             continue
         if any(_min_dist(w[:, :2], o[:, :2]) < c.min_gap for o in walls):
             continue
@@ -105,7 +118,7 @@ def random_walls(
     if len(walls) < c.n_walls:
         raise ConfigError(
             f"could not place {c.n_walls} random walls in {c.max_tries} draws; "
-            "enlarge scenario.random.region or lower keep_clear / min_gap"
+            "enlarge scenario.random.region or lower keep_clear / goal_clear / min_gap"
         )
     return np.concatenate(walls, axis=0)
 

@@ -113,7 +113,7 @@ class ObstacleScenario(Scenario):
                 raise ConfigError(f"scenario {name!r}: random walls need the run's rng")
             extra = random_walls(
                 rng, random, obstacle_radius, spacing,
-                keep_away=[self.x0[self._ip], self.goal[self._ip]],
+                start=self.x0[self._ip], goal=self.goal[self._ip],
             )
             obs = np.concatenate([obs, extra], axis=0)
         #: obstacle discs (n, 3): centre x, centre y, radius [m]

@@ -1,0 +1,75 @@
+"""The BUG2 state machine on scripted positions and detections."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpclab.errors import ConfigError
+from mpclab.plants.zumo import Zumo
+from mpclab.supervisors.bug2 import Bug2
+
+GO = frozenset({"J1", "J2", "J3", "J4"})
+FOLLOW = frozenset({"J3", "J4", "J5"})
+
+
+def make() -> Bug2:
+    sup = Bug2(
+        Zumo(), modes={"go_to_goal": sorted(GO), "wall_follow": sorted(FOLLOW)},
+        block_range=0.2, corridor_half_width=0.08, mline_tolerance=0.03, leave_margin=0.05,
+    )
+    sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]))
+    return sup
+
+
+NONE = np.zeros((0, 2))
+
+
+def test_mline_and_free_way() -> None:
+    sup = make()
+    assert sup.mline == ((0.4, 0.8), (0.4, 0.4))
+    # nothing seen, or a point beside the way or behind: keep going to the goal
+    assert sup.update(0.0, np.array([0.4, 0.8, 0]), NONE) == ("go_to_goal", GO)
+    beside = np.array([[0.55, 0.7]])      # 0.15 off the line toward the goal
+    behind = np.array([[0.4, 0.9]])
+    assert sup.update(0.2, np.array([0.4, 0.8, 0]), beside)[0] == "go_to_goal"
+    assert sup.update(0.4, np.array([0.4, 0.8, 0]), behind)[0] == "go_to_goal"
+    far = np.array([[0.4, 0.55]])         # ahead but 0.25 away > block_range
+    assert sup.update(0.6, np.array([0.4, 0.8, 0]), far)[0] == "go_to_goal"
+
+
+def test_hit_follow_and_leave_closer_on_mline() -> None:
+    sup = make()
+    ahead = np.array([[0.42, 0.65]])      # 0.15 ahead, 0.02 off the line: blocks
+    assert sup.update(0.0, np.array([0.4, 0.8, 0]), ahead) == ("wall_follow", FOLLOW)
+    assert sup.hit_point == pytest.approx([0.4, 0.8])
+    # around the obstacle, off the m-line: keep following whatever is seen
+    assert sup.update(1.0, np.array([0.6, 0.7, 0]), NONE)[0] == "wall_follow"
+    # back on the m-line but not closer to the goal than the hit point: keep following
+    assert sup.update(2.0, np.array([0.41, 0.78, 0]), NONE)[0] == "wall_follow"
+    assert sup.update(3.0, np.array([0.6, 0.5, 0]), NONE)[0] == "wall_follow"
+    # on the m-line and 0.3 m closer than the hit point: leave
+    assert sup.update(4.0, np.array([0.42, 0.5, 0]), NONE) == ("go_to_goal", GO)
+    assert sup.hit_point is None and len(sup.hits) == 1
+
+
+def test_crossing_the_mline_between_steps_counts() -> None:
+    sup = make()
+    sup.update(0.0, np.array([0.4, 0.8, 0]), np.array([[0.4, 0.7]]))
+    sup.update(1.0, np.array([0.45, 0.5, 0]), NONE)         # 0.05 right of the line
+    assert sup.update(1.2, np.array([0.35, 0.5, 0]), NONE)[0] == "go_to_goal"
+
+
+def test_rehit_closer_and_reset() -> None:
+    sup = make()
+    sup.update(0.0, np.array([0.4, 0.8, 0]), np.array([[0.4, 0.7]]))
+    sup.update(1.0, np.array([0.4, 0.6, 0]), NONE)             # leaves (0.2 closer)
+    assert sup.update(1.2, np.array([0.4, 0.6, 0]), np.array([[0.4, 0.5]]))[0] == "wall_follow"
+    assert sup.hit_point == pytest.approx([0.4, 0.6])
+    sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]))
+    assert sup.mode.value == "go_to_goal" and sup.hits == []
+
+
+def test_modes_must_be_named() -> None:
+    with pytest.raises(ConfigError, match="modes"):
+        Bug2(Zumo(), modes={"go_to_goal": ["J1"]})

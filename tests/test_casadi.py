@@ -1,0 +1,86 @@
+"""The CasADi backend: Study A's car on it, objective switching by parameters, failures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpclab.controllers.base import StepContext
+from mpclab.controllers.casadi import CasadiMPC
+from mpclab.errors import ConfigError
+from mpclab.objectives.base import Objective
+from mpclab.objectives.potential import GoalAttraction, ObstacleRepulsion
+from mpclab.objectives.quadratic import QuadraticTracking
+from mpclab.plants.zumo import Zumo
+
+
+def test_car_casadi_arrives_with_terminal_constraint(run_cfg) -> None:
+    res, _ = run_cfg(["+experiment=car_casadi"])
+    s = res.summary
+    assert s["status"] == "arrived" and s["arrival_time_s"] <= 3.0
+    assert s["solver_failures"] == 0
+    hz = res.horizons
+    # v_T = 0 on every predicted horizon (the terminal constraint)
+    assert np.abs(hz[hz["k"] == hz["k"].max()]["v"]).max() < 1e-6
+
+
+def test_car_cvxpy_experiment_runs_on_casadi(run_cfg) -> None:
+    res, _ = run_cfg(["+experiment=car_cvxpy", "controller=casadi_rti"])
+    assert res.summary["controller"] == "casadi" and res.summary["arrived"]
+
+
+def _zumo(terms, **kw) -> CasadiMPC:
+    plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
+    return CasadiMPC(plant, Objective(terms), horizon=8, dt=0.2,
+                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+
+
+def _ctx(active=None, det=None) -> StepContext:
+    det = np.zeros((0, 2)) if det is None else det
+    goal = np.array([0.4, 0.4, 0.0])
+    return StepContext(goal=goal, target=np.tile(goal, (9, 1)), detections=det, active=active)
+
+
+def test_switching_terms_equals_a_solver_built_without_them() -> None:
+    terms = lambda: {  # noqa: E731
+        "J1": GoalAttraction(),
+        "J2": QuadraticTracking(input_weights={"u1": 0.01, "u2": 0.01}),
+        "J4": ObstacleRepulsion(C3=1500, L3=0.05),
+    }
+    x = np.array([0.4, 0.8, -1.2])
+    det = np.array([[0.45, 0.65]])
+    both = _zumo(terms())
+    only = _zumo({k: v for k, v in terms().items() if k != "J4"})
+    a = both.step(0.0, x, _ctx(frozenset({"J1", "J2"}), det))
+    b = only.step(0.0, x, _ctx(None, det))
+    assert a.ok and b.ok
+    assert a.u_pred == pytest.approx(b.u_pred, abs=1e-4)
+    c = both.step(0.0, x, _ctx(None, det))   # J4 back on: the plan changes
+    assert np.abs(c.x_pred - a.x_pred).max() > 1e-3
+
+
+def test_unknown_active_term_is_a_recorded_failure() -> None:
+    mpc = _zumo({"J1": GoalAttraction()})
+    res = mpc.step(0.0, np.array([0.4, 0.8, 0.0]), _ctx(frozenset({"J9"})))
+    assert res.fallback and res.status.startswith("exception")
+
+
+def test_iteration_limit_falls_back_and_records_status() -> None:
+    mpc = _zumo({"J1": GoalAttraction()}, max_iter=1)
+    res = mpc.step(0.0, np.array([0.4, 0.8, 0.0]), _ctx())
+    assert res.fallback and res.status == "Maximum_Iterations_Exceeded"
+    assert res.u == pytest.approx([0.0, 0.0])   # no previous plan: the core fallback stops
+
+
+def test_rti_and_osqp_take_one_qp_per_step() -> None:
+    for qp in ("qpoases", "osqp"):
+        mpc = _zumo({"J1": GoalAttraction()}, solver="sqp_rti", qp_solver=qp)
+        res = mpc.step(0.0, np.array([0.4, 0.8, 0.0]), _ctx())
+        assert res.ok and res.info["iterations"] == 1
+
+
+def test_bad_options_name_the_choices() -> None:
+    with pytest.raises(ConfigError, match="ipopt, sqp_rti"):
+        _zumo({"J1": GoalAttraction()}, solver="snopt")
+    with pytest.raises(ConfigError, match="terminal_constraint"):
+        _zumo({"J1": GoalAttraction()}, terminal_constraint={"vx": 0.0})
