@@ -173,7 +173,7 @@ class RerunRecorder(Recorder):
         self._send_pose(idx, pos[None], np.array([np.nan if self._head is None
                                                   else x[self._head]]))
         self._rec.send_columns(ent.PATH, idx, rr.LineStrips2D.columns(
-            strips=[np.stack([self._last_pos, pos])]))
+            strips=np.stack([self._last_pos, pos])[None]))
         for i, label in enumerate(self._states):
             self._rec.send_columns(f"{ent.STATES}/{label}", idx, rr.Scalars.columns(
                 scalars=[x[i]]))
@@ -265,8 +265,8 @@ class RerunRecorder(Recorder):
             return
         idx = _indexes(b.k, b.t)
         self._send_pose(idx, np.stack([s[1] for s in b.segment]), np.asarray(b.heading))
-        rec.send_columns(ent.PATH, idx, rr.LineStrips2D.columns(strips=b.segment))
-        rec.send_columns(ent.HORIZON, idx, rr.LineStrips2D.columns(strips=b.horizon))
+        rec.send_columns(ent.PATH, idx, rr.LineStrips2D.columns(strips=_strips(b.segment)))
+        rec.send_columns(ent.HORIZON, idx, rr.LineStrips2D.columns(strips=_strips(b.horizon)))
         _send_ragged(rec, ent.DETECTIONS, idx, b.detections, rr.Points2D, "positions")
         if self._rays is not None:
             _send_ragged(rec, ent.RAYS, idx, b.rays, rr.LineStrips2D, "strips")
@@ -329,16 +329,25 @@ def _indexes(ks: Any, ts: Any) -> list[rr.TimeColumn]:
     ]
 
 
+def _strips(strips: list[np.ndarray]) -> np.ndarray | list[np.ndarray]:
+    """Strips of equal length as one ``(n, points, 2)`` array: Rerun converts it ~30x faster."""
+    if strips and all(s.shape == strips[0].shape for s in strips):
+        return np.stack(strips)
+    return strips
+
+
 def _send_ragged(
     rec: rr.RecordingStream, path: str, idx: list[rr.TimeColumn], rows: list[np.ndarray],
     archetype: Any, field: str,
 ) -> None:
-    """Send a different number of items per step (rays, detections) as one column."""
+    """Send a different number of items per step (rays, detections) as one column.
 
+    ``rows`` are ``(n_k, 2)`` points or ``(n_k, 2, 2)`` segments; concatenated they convert in
+    one go.
+    """
     lengths = [len(r) for r in rows]
     flat = np.concatenate(rows)
-    data = list(flat) if field == "strips" else flat
-    rec.send_columns(path, idx, archetype.columns(**{field: data}).partition(lengths))
+    rec.send_columns(path, idx, archetype.columns(**{field: flat}).partition(lengths))
 
 
 def _reference_table(scen: Any) -> Any:
