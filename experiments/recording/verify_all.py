@@ -88,9 +88,14 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 rows.append(check(name, args.override, Path(tmp)))
             except Exception as exc:  # one broken experiment must not hide the others
-                rows.append({"experiment": name, "checks": f"ERROR {type(exc).__name__}: {exc}"})
+                cause = exc.__cause__ or exc  # Hydra wraps the constructor's error
+                first = (str(cause).strip().splitlines() or [""])[0][:100]
+                rows.append({"experiment": name,
+                             "checks": f"ERROR {type(cause).__name__}: {first}"})
             print(f"{name}: {rows[-1]['checks']}", file=sys.stderr)
     table = pd.DataFrame(rows)
+    if "blueprint" in table:
+        table["blueprint"] = table["blueprint"].astype("boolean")
     for col in ("steps", "horizons", "obstacles"):
         if col in table:
             table[col] = table[col].astype("Int64")
