@@ -1,0 +1,115 @@
+"""Study B benchmark: every Zumo experiment on every Zumo scenario, plus car_casadi.
+
+    uv run python experiments/zumo/bench.py [--out outputs/zumo_bench]
+
+Writes one run record per pair under ``--out``, copies each summary.json to
+``experiments/zumo/results/``, draws the study's figures (path, predicted horizons,
+obstacles, m-line, BUG2 modes) into ``experiments/zumo/figures/`` and prints the outcomes
+table (markdown) that experiments/zumo/README.md shows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+
+from mpclab.experiment import build_run, run_experiment  # noqa: E402
+from mpclab.registry import register_all  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+CONF = HERE.parent.parent / "conf"
+
+RUNS = [
+    (exp, scen, seed)
+    for exp in ("zumo_potential", "zumo_right_hand", "zumo_bug2")
+    for scen in ("zumo_one_obstacle", "zumo_wall", "zumo_dead_end")
+    for seed in (0,)
+] + [("zumo_bug2", "zumo_random", s) for s in (0, 1, 2, 3, 4, 5)] + [
+    ("zumo_right_hand", "zumo_random", s) for s in (0, 1, 2)
+] + [("car_casadi", None, 0)]
+
+COLUMNS = ("status", "arrival_time_s", "min_clearance_m", "compute_median_ms",
+           "compute_p95_ms", "rtf", "solver_failures", "n_steps")
+
+
+def compose_run(exp: str, scen: str | None, seed: int) -> object:
+    over = [f"+experiment={exp}", "recorder=none", "progress=false", "figures.enabled=false",
+            f"seed={seed}"]
+    if scen is not None:
+        over.append(f"scenario={scen}")
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=over)
+
+
+def draw(result: object, run: object, path: Path) -> None:
+    """Path (red: go to goal / no supervisor, blue: wall-follow), horizons, world, m-line."""
+    steps, hz, scen = result.steps, result.horizons, run.scenario
+    fig, ax = plt.subplots(figsize=(5.2, 5.2))
+    for _, h in hz.groupby("step", sort=True):
+        ax.plot(h["x"], h["y"], "-", color="tab:blue", lw=0.5, alpha=0.35)
+    scen.draw(ax)
+    mline = getattr(run.supervisor, "mline", None)
+    if mline is not None:
+        (xs, ys), (xg, yg) = mline
+        ax.plot([xs, xg], [ys, yg], "--", color="tab:green", lw=1, label="m-line")
+    modes = steps["mode"].fillna("")
+    for mode, color in (("wall_follow", "tab:purple"), ("go_to_goal", "tab:red"), ("", "tab:red")):
+        sel = steps[modes == mode]
+        if len(sel):
+            ax.plot(sel["x"], sel["y"], ".", color=color, ms=3, label=mode or "path")
+    ax.plot(scen.x0[0], scen.x0[1], "o", color="tab:red", ms=8, label="start")
+    ax.plot(scen.goal[0], scen.goal[1], "o", color="tab:blue", ms=8, label="goal")
+    s = result.summary
+    when = f"arrived {s['arrival_time_s']:.1f} s" if s["arrived"] else s["status"]
+    ax.set_title(f"{s['experiment']} / {scen.name} (seed {s['seed']}): {when}", fontsize=9)
+    ax.set_aspect("equal")
+    ax.legend(loc="lower right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="outputs/zumo_bench")
+    args = ap.parse_args()
+    register_all()
+    out = Path(args.out)
+    (HERE / "results").mkdir(exist_ok=True)
+    (HERE / "figures").mkdir(exist_ok=True)
+    rows = []
+    for exp, scen, seed in RUNS:
+        cfg = compose_run(exp, scen, seed)
+        tag = f"{exp}__{scen or 'car_to_origin'}__{seed}"
+        res = run_experiment(cfg, out / tag)
+        shutil.copy(out / tag / "summary.json", HERE / "results" / f"{tag}.json")
+        if scen is not None:
+            run = build_run(cfg)  # the same objects (and random layout) as the run
+            run.supervisor.reset(run.scenario.x0, run.scenario.goal)
+            draw(res, run, HERE / "figures" / f"{tag}.png")
+        rows.append((exp, res.summary["scenario"], seed, res.summary))
+        print(tag, json.dumps({k: res.summary.get(k) for k in COLUMNS}), file=sys.stderr)
+    print("| experiment | scenario | seed | " + " | ".join(COLUMNS) + " |")
+    print("|" + "---|" * (3 + len(COLUMNS)))
+    for exp, scen, seed, s in rows:
+        cells = [_fmt(s.get(k)) for k in COLUMNS]
+        print(f"| {exp} | {scen} | {seed} | " + " | ".join(cells) + " |")
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return "-" if v is None else str(v)
+
+
+if __name__ == "__main__":
+    main()

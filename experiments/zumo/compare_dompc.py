@@ -1,0 +1,130 @@
+"""Per-step time of mpclab's CasADi backend against do-mpc on the same NLP, interleaved.
+
+    uv sync --extra bench
+    uv run python experiments/zumo/compare_dompc.py [--experiment zumo_right_hand]
+        [--scenario zumo_wall] [--repeats 3]
+
+Both solve Study B's problem with IPOPT: multiple shooting over the same RK4 step, horizon
+10, the experiment's objective terms (the same mpclab Term objects build both costs), the
+same wheel-speed bounds and the same detected points. States are replayed from one
+closed-loop run of the CasADi backend; at every state each controller makes one step, the
+order alternating, each warm-started from its own previous solution. The table gives the
+median and p95 of the per-step wall time and their ratio. do-mpc is an optional dependency:
+nothing in mpclab or its tests imports this file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import casadi as ca
+import numpy as np
+from hydra import compose, initialize_config_dir
+
+from mpclab.controllers.base import StepContext
+from mpclab.experiment import build_run, run_experiment
+from mpclab.registry import register_all
+
+warnings.filterwarnings("ignore")
+import do_mpc  # noqa: E402
+from bench import CONF  # noqa: E402
+
+
+def dompc_controller(run, names_active=None):
+    """A do-mpc MPC with the same model, bounds, horizon and objective terms as ``run``."""
+    plant, ctrl = run.plant, run.controller
+    M, T, dt = ctrl._M, ctrl.horizon, ctrl.dt
+    model = do_mpc.model.Model("discrete", "SX")
+    x = model.set_variable("_x", "x", shape=(plant.nx, 1))
+    u = model.set_variable("_u", "u", shape=(plant.nu, 1))
+    model.set_variable("_tvp", "det", shape=(2, M))
+    model.set_variable("_tvp", "mask", shape=(M, 1))
+    model.set_variable("_tvp", "p0", shape=(plant.nx, 1))
+    model.set_rhs("x", plant.F(x, u, dt))
+    model.setup()
+    goal = ca.DM(run.scenario.goal)
+    p = {"goal": goal, "x0": model.tvp["p0"], "target": ca.repmat(goal, 1, 2),
+         "detections": model.tvp["det"], "mask": model.tvp["mask"]}
+    X = ca.horzcat(model.x["x"], model.x["x"])  # column 1 is the costed state
+    state_cost, effort = 0, 0
+    for name, term in ctrl.objective.terms.items():
+        if names_active is not None and name not in names_active:
+            continue
+        c = term.casadi_cost(X, ca.reshape(model.u["u"], plant.nu, 1), p)
+        if getattr(term, "state_weights", None) is not None and not term.state_weights:
+            effort += c  # input effort only (J2): a stage term
+        else:
+            state_cost += term.casadi_cost(X, ca.DM.zeros(plant.nu, 1), p)
+    mpc = do_mpc.controller.MPC(model)
+    mpc.settings.n_horizon = T
+    mpc.settings.t_step = dt
+    mpc.settings.store_full_solution = False
+    mpc.settings.nlpsol_opts = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": 0,
+                                "ipopt.max_iter": ctrl.max_iter, "ipopt.tol": ctrl.tol}
+    # stage cost on x_0..x_{T-1} plus terminal on x_T: mpclab's x_1..x_T up to a constant
+    mpc.set_objective(lterm=state_cost + effort, mterm=state_cost)
+    mpc.set_rterm(u=0.0)
+    mpc.bounds["lower", "_u", "u"] = plant.u_lb
+    mpc.bounds["upper", "_u", "u"] = plant.u_ub
+    tvp = mpc.get_tvp_template()
+    mpc.set_tvp_fun(lambda t_now: tvp)
+    mpc.setup()
+    return mpc, tvp
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--experiment", default="zumo_right_hand")
+    ap.add_argument("--scenario", default="zumo_wall")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    register_all()
+    over = [f"+experiment={args.experiment}", f"scenario={args.scenario}", "recorder=none",
+            "progress=false", "figures.enabled=false"]
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=over)
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        ref = run_experiment(cfg, tmp)
+    labels = ["x", "y", "theta"]
+    states = ref.steps[ref.steps["status"] != "final"][labels].to_numpy()
+    times = {"mpclab_casadi": [], "do_mpc": []}
+    for rep in range(args.repeats):
+        run = build_run(cfg)
+        ctrl, scen = run.controller, run.scenario
+        ctrl.reset(states[0])
+        mpc, tvp = dompc_controller(run)
+        mpc.x0 = states[0]
+        mpc.set_initial_guess()
+        for k, x in enumerate(states):
+            det, mask = ctrl._pad_detections(x, scen.detect(x))
+            ctx = StepContext(goal=scen.goal, target=scen.target(0, ctrl.horizon, ctrl.dt),
+                              detections=scen.detect(x))
+            tvp["_tvp", :, "det"] = det
+            tvp["_tvp", :, "mask"] = mask
+            tvp["_tvp", :, "p0"] = x
+            order = ("mpclab_casadi", "do_mpc")
+            if (k + rep) % 2:
+                order = order[::-1]
+            for who in order:
+                t0 = time.perf_counter()
+                if who == "mpclab_casadi":
+                    ctrl.step(k * ctrl.dt, x, ctx)
+                else:
+                    mpc.make_step(x.reshape(-1, 1))
+                times[who].append(time.perf_counter() - t0)
+    a, b = (np.asarray(times[n]) * 1e3 for n in ("mpclab_casadi", "do_mpc"))
+    print(f"{args.experiment} on {args.scenario}: {len(states)} states x {args.repeats} repeats")
+    print("| controller | median ms | p95 ms |")
+    print("|---|---|---|")
+    for name, v in (("mpclab casadi (IPOPT)", a), ("do-mpc (IPOPT)", b)):
+        print(f"| {name} | {np.median(v):.2f} | {np.percentile(v, 95):.2f} |")
+    print(f"ratio do-mpc / mpclab, median per step: {np.median(b) / np.median(a):.2f}; "
+          f"of medians of paired steps: {np.median(b / a):.2f}")
+
+
+if __name__ == "__main__":
+    main()
