@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import compose_cfg
 from rerun.chunk import RrdReader
 
+from conftest import compose_cfg
 from mpclab import record
 from mpclab.errors import ConfigError
 from mpclab.experiment import build_run
@@ -181,6 +181,23 @@ def test_hooks_are_recorded(tmp_path):
     log = temporal(rows, ent.MODE_LOG)
     assert [r[ent.STEP] for r in log] == changes
     assert [r["TextLog:text"][0] for r in log] == ["mode: goal", "mode: follow"]
+
+
+def test_plant_without_heading_is_drawn_as_points(tmp_path):
+    cfg = compose_cfg(["+experiment=car_cvxpy", "controller.horizon=4", "scenario.t_max=0.5"])
+    run = build_run(cfg, tmp_path)
+    run.plant.heading = None  # as a plant without a heading state declares it
+    try:
+        res = simulate(run)
+    finally:
+        run.recorder.close()
+    rows = read_rrd(tmp_path / RRD)
+    poses = temporal(rows, ent.VEHICLE)
+    assert len(poses) == res.summary["n_steps"] + 1
+    assert all("Arrows2D:origins" not in r for r in poses)
+    np.testing.assert_allclose([r["Points2D:positions"][0] for r in poses],
+                               res.steps[["px", "py"]].to_numpy(), atol=TOL)
+    np.testing.assert_allclose(static(rows, ent.GOAL, "Points2D:positions"), [[0.0, 0.0]])
 
 
 def test_merge_puts_each_run_under_its_prefix(run_cfg, tmp_path):
