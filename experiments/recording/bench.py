@@ -3,7 +3,9 @@
 For each experiment named, one process composes it twice (figures off, no progress line),
 runs one warm-up of each (importing rerun and its first recording happen once per process;
 their cost is printed separately), then alternates ``--rounds`` pairs (none, rerun / rerun,
-none, ...) and times ``run_experiment`` from config to written run record: the run's wall time.
+none, ...) and times ``run_experiment`` from config to written run record: the run's wall time,
+and the CPU time of the whole process (rerun's writer threads included), which other jobs on
+the machine disturb less.
 
     uv run python experiments/recording/bench.py car_cvxpy [zumo_bug2 ...] [--rounds 7]
         [--override KEY=VALUE ...]   # extra Hydra overrides for every run
@@ -37,9 +39,16 @@ def compose_run(experiment: str, recorder: str, overrides: list[str]):
 
 
 def timed_run(cfg, out: Path) -> tuple[float, dict]:
-    t0 = time.perf_counter()
+    """Wall time [s] of one run from config to written record, and its summary."""
+    seconds, _, summary = timed_run_cpu(cfg, out)
+    return seconds, summary
+
+
+def timed_run_cpu(cfg, out: Path) -> tuple[float, float, dict]:
+    """Wall and CPU time [s] (every thread of this process) of one run, and its summary."""
+    c0, t0 = time.process_time(), time.perf_counter()
     result = run_experiment(cfg, out)
-    return time.perf_counter() - t0, result.summary
+    return time.perf_counter() - t0, time.process_time() - c0, result.summary
 
 
 def bench(experiment: str, rounds: int, overrides: list[str], tmp: Path) -> dict:
@@ -50,13 +59,16 @@ def bench(experiment: str, rounds: int, overrides: list[str], tmp: Path) -> dict
     t_import = time.perf_counter() - t_import
     warm = {rec: timed_run(cfgs[rec], tmp / f"{experiment}_warm_{rec}")[0] for rec in RECORDERS}
     times: dict[str, list[float]] = {rec: [] for rec in RECORDERS}
+    cpu: dict[str, list[float]] = {rec: [] for rec in RECORDERS}
     summary: dict = {}
     for i in range(rounds):
         order = RECORDERS if i % 2 == 0 else RECORDERS[::-1]
         for rec in order:
-            seconds, summary = timed_run(cfgs[rec], tmp / f"{experiment}_{i}_{rec}")
+            seconds, cpu_s, summary = timed_run_cpu(cfgs[rec], tmp / f"{experiment}_{i}_{rec}")
             times[rec].append(seconds)
+            cpu[rec].append(cpu_s)
     none, rerun_ = np.asarray(times["none"]), np.asarray(times["rerun"])
+    cpu_none, cpu_rerun = np.median(cpu["none"]), np.median(cpu["rerun"])
     rrd = tmp / f"{experiment}_0_rerun" / "run.rrd"
     return {
         "experiment": experiment,
@@ -67,6 +79,7 @@ def bench(experiment: str, rounds: int, overrides: list[str], tmp: Path) -> dict
         "rerun_median_s": float(np.median(rerun_)),
         "overhead_pct": 100 * (float(np.median(rerun_)) / float(np.median(none)) - 1),
         "pairwise_overhead_pct": 100 * float(np.median(rerun_ / none) - 1),
+        "cpu_overhead_pct": 100 * float(cpu_rerun / cpu_none - 1),
         "rrd_kib": rrd.stat().st_size / 1024,
         "first_rerun_run_s": warm["rerun"],
         "import_rerun_s": t_import,
