@@ -101,6 +101,10 @@ def test_car_recording_matches_run_record(run_cfg):
     np.testing.assert_allclose(solve, 1e3 * steps["solve_time_s"].to_numpy()[:n])
     a = [r["Scalars:scalars"][0] for r in temporal(rows, f"{ent.INPUTS}/a")]
     np.testing.assert_allclose(a, steps["a"].to_numpy()[:n])
+    (end,) = temporal(rows, ent.RUN_LOG)
+    arrival = result.summary["arrival_time_s"]
+    assert end[ent.STEP] == n
+    assert end["TextLog:text"] == [f"run ended: arrived at t = {arrival:.2f} s"]
     assert len(static(rows, ent.OBSTACLES, "Points2D:positions")) == 0  # the car's world
     assert "name: car_cvxpy" in static(rows, ent.CONFIG, "TextDocument:text")[0]
     assert "rerun-sdk" in static(rows, ent.CONFIG, "TextDocument:text")[0]

@@ -129,16 +129,11 @@ class RerunRecorder(Recorder):
         if self._rec is None:
             return
         x = np.asarray(x, dtype=float)
-        pos = x[self._pos]
+        pos = self._pose_row(k, t, x)
         b = self._buf
         b.k.append(k)
         b.t.append(t)
-        b.x.append(x.copy())
         b.u.append(np.asarray(step.u, dtype=float).reshape(-1).copy())
-        b.heading.append(np.nan if self._head is None else x[self._head])
-        b.segment.append(np.stack([self._last_pos, pos]))
-        self._last_pos = pos.copy()
-        self._lo, self._hi = np.minimum(self._lo, pos), np.maximum(self._hi, pos)
         x_pred = np.asarray(step.x_pred, dtype=float)
         b.horizon.append(x_pred[:, self._pos] if x_pred.ndim == 2 else np.zeros((0, 2)))
         b.solve_time_ms.append(1e3 * float(step.info.get("solve_time_s", np.nan)))
@@ -161,26 +156,14 @@ class RerunRecorder(Recorder):
             self._flush()
 
     def finish(self, x: Any, t: float, summary: dict[str, Any]) -> None:
-        """Log the final pose and the last path segment at step ``n_steps``."""
-        import rerun as rr
-
+        """Log the final pose, state and path segment at step ``n_steps``, and the outcome."""
         if self._rec is None:
             return
-        self._flush()
-        x = np.asarray(x, dtype=float)
-        pos = x[self._pos]
-        idx = _indexes([self._k], [t])
-        self._send_pose(idx, pos[None], np.array([np.nan if self._head is None
-                                                  else x[self._head]]))
-        self._rec.send_columns(ent.PATH, idx, rr.LineStrips2D.columns(
-            strips=np.stack([self._last_pos, pos])[None]))
-        for i, label in enumerate(self._states):
-            self._rec.send_columns(f"{ent.STATES}/{label}", idx, rr.Scalars.columns(
-                scalars=[x[i]]))
-        self._last_pos = pos.copy()
+        self._pose_row(self._k, t, np.asarray(x, dtype=float))
         when = f" at t = {summary['arrival_time_s']:.2f} s" if summary.get("arrived") else ""
-        self._rec.send_columns("log/run", idx, rr.TextLog.columns(
-            text=[f"run ended: {summary.get('status')}{when}"], level=["INFO"]))
+        self._buf.events.append((ent.RUN_LOG, self._k, t,
+                                 f"run ended: {summary.get('status')}{when}", "INFO"))
+        self._flush()
 
     def close(self) -> None:
         if self._rec is None:
@@ -257,33 +240,53 @@ class RerunRecorder(Recorder):
                 rec.send_columns(f"{ent.STATES}/{label}/reference", idx, rr.Scalars.columns(
                     scalars=ref[label].to_numpy(dtype=float)))
 
+    def _pose_row(self, k: int, t: float, x: np.ndarray) -> np.ndarray:
+        """Buffer the pose, state and new path segment at step ``k``; return the position."""
+        b = self._buf
+        pos = x[self._pos]
+        b.pk.append(k)
+        b.pt.append(t)
+        b.x.append(x.copy())
+        b.heading.append(np.nan if self._head is None else x[self._head])
+        b.segment.append(np.stack([self._last_pos, pos]))
+        self._last_pos = pos.copy()
+        self._lo, self._hi = np.minimum(self._lo, pos), np.maximum(self._hi, pos)
+        return pos
+
     def _flush(self) -> None:
         import rerun as rr
 
         b, rec = self._buf, self._rec
-        if rec is None or not b.k:
+        if rec is None or not (b.pk or b.events):
             return
-        idx = _indexes(b.k, b.t)
-        self._send_pose(idx, np.stack([s[1] for s in b.segment]), np.asarray(b.heading))
-        rec.send_columns(ent.PATH, idx, rr.LineStrips2D.columns(strips=_strips(b.segment)))
-        rec.send_columns(ent.HORIZON, idx, rr.LineStrips2D.columns(strips=_strips(b.horizon)))
-        _send_ragged(rec, ent.DETECTIONS, idx, b.detections, rr.Points2D, "positions")
-        if self._rays is not None:
-            _send_ragged(rec, ent.RAYS, idx, b.rays, rr.LineStrips2D, "strips")
-        X, U = np.stack(b.x), np.stack(b.u)
-        for i, label in enumerate(self._states):
-            rec.send_columns(f"{ent.STATES}/{label}", idx, rr.Scalars.columns(scalars=X[:, i]))
-        for j, label in enumerate(self._inputs[: U.shape[1]]):
-            rec.send_columns(f"{ent.INPUTS}/{label}", idx, rr.Scalars.columns(scalars=U[:, j]))
-        for path, values in ((ent.SOLVE_TIME, b.solve_time_ms), (ent.SOLVER_OK, b.ok),
-                             (ent.COST, b.cost)):
-            rec.send_columns(path, idx, rr.Scalars.columns(scalars=values))
-        for path in (ent.MODE_LOG, ent.SOLVER_LOG):
+        if b.pk:  # poses, path segments and states: every step and the final state
+            idx = _indexes(b.pk, b.pt)
+            self._send_pose(idx, np.stack([s[1] for s in b.segment]), np.asarray(b.heading))
+            rec.send_columns(ent.PATH, idx, rr.LineStrips2D.columns(strips=_strips(b.segment)))
+            X = np.stack(b.x)
+            for i, label in enumerate(self._states):
+                rec.send_columns(f"{ent.STATES}/{label}", idx,
+                                 rr.Scalars.columns(scalars=X[:, i]))
+        if b.k:  # what each controller call adds
+            idx = _indexes(b.k, b.t)
+            rec.send_columns(ent.HORIZON, idx,
+                             rr.LineStrips2D.columns(strips=_strips(b.horizon)))
+            _send_ragged(rec, ent.DETECTIONS, idx, b.detections, rr.Points2D, "positions")
+            if self._rays is not None:
+                _send_ragged(rec, ent.RAYS, idx, b.rays, rr.LineStrips2D, "strips")
+            U = np.stack(b.u)
+            for j, label in enumerate(self._inputs[: U.shape[1]]):
+                rec.send_columns(f"{ent.INPUTS}/{label}", idx,
+                                 rr.Scalars.columns(scalars=U[:, j]))
+            for path, values in ((ent.SOLVE_TIME, b.solve_time_ms), (ent.SOLVER_OK, b.ok),
+                                 (ent.COST, b.cost)):
+                rec.send_columns(path, idx, rr.Scalars.columns(scalars=values))
+        for path in (ent.MODE_LOG, ent.SOLVER_LOG, ent.RUN_LOG):
             rows = [e for e in b.events if e[0] == path]
             if rows:
                 _, ks, ts, text, level = zip(*rows, strict=True)
-                rec.send_columns(path, _indexes(ks, ts), rr.TextLog.columns(text=text,
-                                                                              level=level))
+                rec.send_columns(path, _indexes(ks, ts),
+                                 rr.TextLog.columns(text=text, level=level))
         self._buf = _StepBuffer()
 
     def _send_pose(self, idx: list[rr.TimeColumn], pos: np.ndarray, heading: np.ndarray) -> None:
@@ -305,12 +308,16 @@ class _StepBuffer:
     """Per-step values waiting to be sent in columns."""
 
     def __init__(self) -> None:
-        self.k: list[int] = []
-        self.t: list[float] = []
+        # poses, states, path segments: one row per step plus the final state
+        self.pk: list[int] = []
+        self.pt: list[float] = []
         self.x: list[np.ndarray] = []
-        self.u: list[np.ndarray] = []
         self.heading: list[float] = []
         self.segment: list[np.ndarray] = []
+        # one row per controller call
+        self.k: list[int] = []
+        self.t: list[float] = []
+        self.u: list[np.ndarray] = []
         self.horizon: list[np.ndarray] = []
         self.detections: list[np.ndarray] = []
         self.rays: list[np.ndarray] = []

@@ -35,6 +35,7 @@ SOLVER_OK = f"{SOLVER}/ok"
 COST = f"{SOLVER}/cost"
 MODE_LOG = "log/mode"  # TextLog: supervisor mode, on each change
 SOLVER_LOG = "log/solver"  # TextLog: solver status, on each change
+RUN_LOG = "log/run"  # TextLog: how the run ended
 CONFIG = "run/config"  # static TextDocument: resolved config and package versions
 
 
