@@ -84,3 +84,69 @@ def test_bad_options_name_the_choices() -> None:
         _zumo({"J1": GoalAttraction()}, solver="snopt")
     with pytest.raises(ConfigError, match="terminal_constraint"):
         _zumo({"J1": GoalAttraction()}, terminal_constraint={"vx": 0.0})
+
+
+def _j1_j2_j4():
+    return {
+        "J1": GoalAttraction(),
+        "J2": QuadraticTracking(input_weights={"u1": 0.01, "u2": 0.01}),
+        "J4": ObstacleRepulsion(C3=1500, L3=0.05),
+    }
+
+
+def test_single_shooting_solves_the_same_nlp() -> None:
+    # the same optimum whether the states are variables (multiple) or the inputs' rollout
+    x, det = np.array([0.4, 0.8, -1.2]), np.array([[0.45, 0.65]])
+    a = _zumo(_j1_j2_j4()).step(0.0, x, _ctx(None, det))
+    b = _zumo(_j1_j2_j4(), shooting="single").step(0.0, x, _ctx(None, det))
+    assert a.ok and b.ok
+    assert b.u_pred == pytest.approx(a.u_pred, abs=1e-3)
+    assert b.x_pred == pytest.approx(a.x_pred, abs=1e-5)
+    # the plan's states are the plant's rollout of its inputs
+    assert b.x_pred == pytest.approx(Zumo().rollout(x, b.u_pred, 0.2), abs=1e-9)
+
+
+def test_sqp_iterations_converge_to_ipopt() -> None:
+    x = np.array([0.4, 0.8, -1.2])
+    ref = _zumo(_j1_j2_j4()).step(0.0, x, _ctx())
+    for shooting in ("single", "multiple"):
+        sqp = _zumo(_j1_j2_j4(), solver="sqp_rti", sqp_iterations=60, shooting=shooting)
+        res = sqp.step(0.0, x, _ctx())
+        assert res.ok and 1 < res.info["iterations"] <= 60
+        assert res.u_pred == pytest.approx(ref.u_pred, abs=1e-2), shooting
+    three = _zumo(_j1_j2_j4(), solver="sqp_rti", sqp_iterations=3, shooting="single")
+    res = three.step(0.0, x, _ctx())
+    assert res.ok and res.info["iterations"] == 3
+    assert np.all(np.abs(res.u_pred) <= 10 + 1e-9)
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "sqp_rti"])
+def test_collision_constraint_keeps_predicted_positions_off_detected_points(solver) -> None:
+    # a detected point on the straight way to the goal; J1 alone would drive through it
+    x, point = np.array([0.4, 0.8, -np.pi / 2]), np.array([0.4, 0.7])
+    kw = {"solver": solver, "shooting": "single", "sqp_iterations": 20}
+    free = _zumo({"J1": GoalAttraction()}, **kw).step(0.0, x, _ctx(None, point[None]))
+    hard = _zumo({"J1": GoalAttraction()}, collision_distance=0.06, **kw).step(
+        0.0, x, _ctx(None, point[None])
+    )
+    assert free.ok and hard.ok
+    dist = lambda plan: np.hypot(*(plan.x_pred[1:, :2] - point).T)  # noqa: E731
+    assert dist(free).min() < 0.06
+    assert dist(hard).min() >= 0.06 - 1e-6
+
+
+def test_within_bounds_flags_a_failed_qp_iterate() -> None:
+    mpc = _zumo({"J1": GoalAttraction()}, solver="sqp_rti", shooting="single")
+    w = np.zeros(mpc._lbw.size)
+    assert mpc._within_bounds(w)
+    w[3] = 10.5   # an input beyond |u| <= 10, as a silently failed QP leaves it
+    assert not mpc._within_bounds(w)
+
+
+def test_new_options_are_checked() -> None:
+    with pytest.raises(ConfigError, match="multiple, single"):
+        _zumo({"J1": GoalAttraction()}, shooting="triple")
+    with pytest.raises(ConfigError, match="sqp_iterations"):
+        _zumo({"J1": GoalAttraction()}, sqp_iterations=0)
+    with pytest.raises(ConfigError, match="collision_distance"):
+        _zumo({"J1": GoalAttraction()}, collision_distance=-0.1)

@@ -45,3 +45,17 @@ def test_bug2_on_random_layouts(run_cfg, seed) -> None:
     steps = res.steps
     assert (steps["mode"] == "wall_follow").any()
     assert np.isfinite(s["min_clearance_m"]) and s["min_clearance_m"] > 0
+
+
+@pytest.mark.parametrize(
+    "backend",
+    [
+        ["controller=casadi"],                                  # IPOPT to convergence
+        ["controller.sqp_iterations=1", "controller.collision_distance=0.06"],  # hard constraint
+    ],
+)
+def test_bug2_dead_end_on_other_backends(run_cfg, backend) -> None:
+    res, _ = run_cfg(["+experiment=zumo_bug2", *backend])
+    s = res.summary
+    assert s["status"] == "arrived" and s["solver_failures"] == 0, s
+    assert s["min_clearance_m"] > 0.01   # measured 0.065 and 0.065

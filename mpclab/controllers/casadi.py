@@ -7,8 +7,17 @@ rebuild). Two solvers share the NLP:
 
 * ``ipopt``: solved to convergence (interior point), warm-started from the previous
   solution shifted by one step;
-* ``sqp_rti``: real-time iteration, one SQP step (one QP, qpOASES or OSQP) per sample from
-  the shifted previous solution and multipliers, the Hessian of the Lagrangian made convex.
+* ``sqp_rti``: real-time iteration, a fixed number of SQP steps (``sqp_iterations``, one QP
+  each: qpOASES, OSQP or CasADi's sparse active-set ``qrqp``) per sample from the shifted
+  previous solution and multipliers, the Hessian of the Lagrangian made convex.
+
+Optional hard collision constraint (``collision_distance = R > 0``): every predicted position
+``p_k`` (``k = 1..T``) keeps ``|p_k - p_i| >= R_i`` from every detected point ``p_i``, written
+``R_i^2 - |p_k - p_i|^2 <= 0``, with ``R_i = min(R, |p_0 - p_i|)`` (a point already nearer
+than ``R`` may not be approached further, so that standing still stays feasible) and
+``R_i = 0`` for padding. Detected points lie on obstacle surfaces, so ``R`` = robot radius +
+a margin keeps the robot's disc off them. The left side is concave in ``p_k``: its
+linearization (the QP of ``sqp_rti``) is a half-plane inside the feasible set.
 """
 
 from __future__ import annotations
@@ -33,9 +42,15 @@ class CasadiSolver(StrEnum):
     sqp_rti = "sqp_rti"
 
 
+class Shooting(StrEnum):
+    multiple = "multiple"
+    single = "single"
+
+
 class QpSolver(StrEnum):
     qpoases = "qpoases"
     osqp = "osqp"
+    qrqp = "qrqp"
 
 
 #: solver return statuses that count as a solved step
@@ -51,6 +66,9 @@ class CasadiConf:
     dt: float = 0.1
     solver: CasadiSolver = CasadiSolver.ipopt
     qp_solver: QpSolver = QpSolver.qpoases
+    sqp_iterations: int = 1
+    shooting: Shooting = Shooting.multiple
+    collision_distance: float = 0.0
     max_iter: int = 100
     tol: float = 1e-6
     warm_start: bool = True
@@ -73,7 +91,16 @@ class CasadiMPC(Controller):
     solver
         ``ipopt`` (solve to convergence) or ``sqp_rti`` (one QP per step).
     qp_solver
-        QP solver of ``sqp_rti``: ``qpoases`` or ``osqp``.
+        QP solver of ``sqp_rti``: ``qpoases`` (dense), ``osqp`` or ``qrqp`` (sparse).
+    sqp_iterations
+        SQP steps per sample of ``sqp_rti`` (fewer if converged first); ignored by IPOPT.
+    shooting
+        ``multiple`` (states and inputs are variables, the dynamics equality constraints)
+        or ``single`` (inputs only, the states their rollout: the NLP is small and dense and
+        its QPs have bounds only, unless state bounds or constraints are set).
+    collision_distance
+        ``R`` [m] of the hard collision constraint on detected points (module docstring);
+        0 turns it off.
     max_iter, tol
         IPOPT's iteration limit and tolerance (ignored by ``sqp_rti``).
     warm_start
@@ -100,6 +127,9 @@ class CasadiMPC(Controller):
         dt: float = 0.1,
         solver: CasadiSolver | str = CasadiSolver.ipopt,
         qp_solver: QpSolver | str = QpSolver.qpoases,
+        sqp_iterations: int = 1,
+        shooting: Shooting | str = Shooting.multiple,
+        collision_distance: float = 0.0,
         max_iter: int = 100,
         tol: float = 1e-6,
         warm_start: bool = True,
@@ -113,6 +143,15 @@ class CasadiMPC(Controller):
         self.qp_solver = _enum(QpSolver, qp_solver, "controller.qp_solver")
         if int(max_iter) < 1:
             raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
+        if int(sqp_iterations) < 1:
+            raise ConfigError(f"controller.sqp_iterations must be >= 1, got {sqp_iterations}")
+        if not float(collision_distance) >= 0:
+            raise ConfigError(
+                f"controller.collision_distance must be >= 0 (0: off), got {collision_distance}"
+            )
+        self.sqp_iterations = int(sqp_iterations)
+        self.shooting = _enum(Shooting, shooting, "controller.shooting")
+        self.collision_distance = float(collision_distance)
         if int(max_detections) < 0:
             raise ConfigError(f"controller.max_detections must be >= 0, got {max_detections}")
         self.max_iter, self.tol = int(max_iter), float(tol)
@@ -135,7 +174,6 @@ class CasadiMPC(Controller):
     # ------------------------------------------------------------------ build once
     def _build(self, terminal: dict[str, float], extra: dict[str, Any]) -> None:
         nx, nu, T, M = self.plant.nx, self.plant.nu, self.horizon, max(self.max_detections, 1)
-        X = ca.SX.sym("X", nx, T + 1)
         U = ca.SX.sym("U", nu, T)
         x0 = ca.SX.sym("x0", nx)
         goal = ca.SX.sym("goal", nx)
@@ -144,31 +182,66 @@ class CasadiMPC(Controller):
         mask = ca.SX.sym("mask", M)
         active = ca.SX.sym("active", len(self._names))
         p = {"x0": x0, "goal": goal, "target": target, "detections": det, "mask": mask}
+        P = ca.vertcat(x0, goal, ca.vec(target), ca.vec(det), mask, active)
+        if self.collision_distance > 0:
+            radius = ca.SX.sym("radius", M)  # R_i, see the module docstring
+            P = ca.vertcat(P, radius)
+        g: list[Any] = []  # equalities first, then inequalities (bounds in lbg, ubg)
+        if self.shooting is Shooting.multiple:
+            X = ca.SX.sym("X", nx, T + 1)
+            w = ca.vertcat(ca.vec(X), ca.vec(U))
+            g += [X[:, 0] - x0]
+            g += [X[:, k + 1] - self.plant.F(X[:, k], U[:, k], self.dt) for k in range(T)]
+        else:  # single shooting: the states are the rollout of the inputs
+            cols = [x0]
+            for k in range(T):
+                cols.append(self.plant.F(cols[-1], U[:, k], self.dt))
+            X = ca.horzcat(*cols)
+            w = ca.vec(U)
+        self._plan_fn = ca.Function("plan", [w, P], [X])
         cost = 0
         for j, term in enumerate(self.objective):
             cost += active[j] * term.casadi_cost(X, U, p)
-        g = [X[:, 0] - x0]
-        g += [X[:, k + 1] - self.plant.F(X[:, k], U[:, k], self.dt) for k in range(T)]
         for label, value in terminal.items():
             try:
                 i = self.plant.state_index(label)
             except ValueError as exc:
                 raise ConfigError(f"controller.terminal_constraint: {exc}") from None
             g.append(X[i, T] - float(value))
-        w = ca.vertcat(ca.vec(X), ca.vec(U))
-        P = ca.vertcat(x0, goal, ca.vec(target), ca.vec(det), mask, active)
+        lbg = [np.zeros(sum(int(gi.shape[0]) for gi in g))]
+        ubg = [lbg[0]]
+        if self.shooting is Shooting.single:  # finite state bounds become constraints
+            rows = np.flatnonzero(np.isfinite(self.plant.x_lb) | np.isfinite(self.plant.x_ub))
+            for i in rows:
+                g.append(X[int(i), 1:].T)
+                lbg.append(np.full(T, self.plant.x_lb[i]))
+                ubg.append(np.full(T, self.plant.x_ub[i]))
+        if self.collision_distance > 0:
+            g.append(ca.vec(self._collision(X, det, radius)))
+            lbg.append(np.full(M * T, -np.inf))
+            ubg.append(np.zeros(M * T))
         nlp = {"x": w, "p": P, "f": cost, "g": ca.vertcat(*g)}
         self._ng = int(nlp["g"].shape[0])
+        self._lbg, self._ubg = np.concatenate(lbg), np.concatenate(ubg)
         self._M = M
         name, opts = self._solver_setup(extra)
         self.solver_fn = ca.nlpsol("mpc", name, nlp, opts)
-        inf = np.inf
-        xlb = np.column_stack([np.full(nx, -inf)] + [self.plant.x_lb] * T)
-        xub = np.column_stack([np.full(nx, inf)] + [self.plant.x_ub] * T)
-        ulb = np.tile(self.plant.u_lb[:, None], (1, T))
-        uub = np.tile(self.plant.u_ub[:, None], (1, T))
-        self._lbw = np.concatenate([xlb.ravel("F"), ulb.ravel("F")])
-        self._ubw = np.concatenate([xub.ravel("F"), uub.ravel("F")])
+        ulb = np.tile(self.plant.u_lb[:, None], (1, T)).ravel("F")
+        uub = np.tile(self.plant.u_ub[:, None], (1, T)).ravel("F")
+        if self.shooting is Shooting.multiple:
+            inf = np.inf
+            xlb = np.column_stack([np.full(nx, -inf)] + [self.plant.x_lb] * T).ravel("F")
+            xub = np.column_stack([np.full(nx, inf)] + [self.plant.x_ub] * T).ravel("F")
+            ulb, uub = np.concatenate([xlb, ulb]), np.concatenate([xub, uub])
+        self._lbw, self._ubw = ulb, uub
+
+    def _collision(self, X: Any, det: Any, radius: Any) -> Any:
+        """``R_i^2 - |p_k - p_i|^2`` ``(M, T)`` over the predicted positions ``k = 1..T``."""
+        ix, iy = (self.plant.state_index(s) for s in self.plant.position)
+        M, T = det.shape[1], self.horizon
+        dx = ca.repmat(X[ix, 1:], M, 1) - ca.repmat(det[0, :].T, 1, T)
+        dy = ca.repmat(X[iy, 1:], M, 1) - ca.repmat(det[1, :].T, 1, T)
+        return ca.repmat(radius**2, 1, T) - dx**2 - dy**2
 
     def _solver_setup(self, extra: dict[str, Any]) -> tuple[str, dict[str, Any]]:
         if self.solver is CasadiSolver.ipopt:
@@ -183,20 +256,21 @@ class CasadiMPC(Controller):
                 opts["ipopt.warm_start_init_point"] = "yes"
             name = "ipopt"
         else:
-            qp_opts = (
-                {"printLevel": "none", "error_on_fail": False}
-                if self.qp_solver is QpSolver.qpoases
-                else {"osqp": {"verbose": False}, "error_on_fail": False}
-            )
+            qp_opts = {
+                QpSolver.qpoases: {"printLevel": "none"},
+                QpSolver.osqp: {"osqp": {"verbose": False}},
+                QpSolver.qrqp: {"print_iter": False, "print_header": False, "print_info": False},
+            }[self.qp_solver] | {"error_on_fail": False}
             opts = {
                 "print_time": False,
                 "print_header": False,
                 "print_iteration": False,
                 "print_status": False,
-                "max_iter": 1,
+                "max_iter": self.sqp_iterations,
                 "qpsol": self.qp_solver.value,
                 "qpsol_options": qp_opts,
                 "convexify_strategy": "eigen-clip",
+                "max_iter_eig": 500,  # the default 50 left dense Hessians undecomposed
                 "error_on_fail": False,
             }
             name = "sqpmethod"
@@ -221,9 +295,13 @@ class CasadiMPC(Controller):
                 )
             act = np.array([1.0 if n in ctx.active else 0.0 for n in self._names])
         target = np.asarray(ctx.target, dtype=float)
-        return np.concatenate(
-            [x, np.asarray(ctx.goal, dtype=float), target.T.ravel("F"), det.ravel("F"), mask, act]
-        )
+        parts = [x, np.asarray(ctx.goal, dtype=float), target.T.ravel("F"), det.ravel("F"), mask,
+                 act]
+        if self.collision_distance > 0:
+            ix, iy = (self.plant.state_index(s) for s in self.plant.position)
+            d0 = np.hypot(det[0] - x[ix], det[1] - x[iy])
+            parts.append(np.minimum(self.collision_distance, d0) * mask)
+        return np.concatenate(parts)
 
     def _pad_detections(self, x: FloatArray, det: FloatArray) -> tuple[FloatArray, FloatArray]:
         M = self._M
@@ -248,6 +326,8 @@ class CasadiMPC(Controller):
         else:
             X, U = shift(prev.x_pred), shift(prev.u_pred)
             X[0] = x
+        if self.shooting is Shooting.single:
+            return U.ravel()
         return np.concatenate([X.ravel(), U.ravel()])  # row-major (T+1, nx) == vec of (nx, T+1)
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
@@ -256,8 +336,8 @@ class CasadiMPC(Controller):
             "p": self._params(x, ctx),
             "lbx": self._lbw,
             "ubx": self._ubw,
-            "lbg": 0.0,
-            "ubg": 0.0,
+            "lbg": self._lbg,
+            "ubg": self._ubg,
         }
         if self.warm_start and self._lam_g is not None and self.previous_plan is not None:
             args["lam_x0"], args["lam_g0"] = self._lam_x, self._lam_g
@@ -266,8 +346,10 @@ class CasadiMPC(Controller):
         ok = _RTI_OK if self.solver is CasadiSolver.sqp_rti else _IPOPT_OK
         status = str(stats.get("return_status", "unknown"))
         info = {"iterations": int(stats.get("iter_count", -1))}
-        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        nu, T = self.plant.nu, self.horizon
         w = np.asarray(sol["x"], dtype=float).ravel()
+        if status in ok and not self._within_bounds(w):
+            status = "qp_failed_out_of_bounds"  # an SQP step whose QP failed silently
         if status not in ok or not np.all(np.isfinite(w)):
             self._lam_x = self._lam_g = None
             res = self._failed(status, x)
@@ -275,23 +357,30 @@ class CasadiMPC(Controller):
             return res
         self._lam_x = self._shift_lam_x(np.asarray(sol["lam_x"], dtype=float).ravel())
         self._lam_g = np.asarray(sol["lam_g"], dtype=float).ravel()
-        X = w[: nx * (T + 1)].reshape(T + 1, nx)
-        U = w[nx * (T + 1):].reshape(T, nu)
+        X = np.asarray(self._plan_fn(w, args["p"]), dtype=float).T  # (T+1, nx)
+        U = w[w.size - nu * T:].reshape(T, nu)
         return ControlStep(
             u=U[0].copy(), x_pred=X, u_pred=U, status="optimal", cost=float(sol["f"]),
             info=info,
         )
 
+    def _within_bounds(self, w: FloatArray, tol: float = 1e-6) -> bool:
+        """Whether ``w`` keeps its variable bounds (a QP solved to success always does)."""
+        slack = tol * (1.0 + np.abs(w))
+        return bool(np.all(w >= self._lbw - slack) and np.all(w <= self._ubw + slack))
+
     def _shift_lam_x(self, lam: FloatArray) -> FloatArray:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        lu = shift(lam[lam.size - nu * T:].reshape(T, nu))
+        if self.shooting is Shooting.single:
+            return lu.ravel()
         lx = shift(lam[: nx * (T + 1)].reshape(T + 1, nx))
-        lu = shift(lam[nx * (T + 1):].reshape(T, nu))
         return np.concatenate([lx.ravel(), lu.ravel()])
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         it = steps["iterations"].dropna() if "iterations" in steps else []
         return {"solver": self.solver.value, "iterations_median": float(np.median(it)) if len(it)
-                else None}
+                else None, "collision_distance": self.collision_distance}
 
 
 def _enum(cls: type[Enum], value: Any, where: str) -> Any:
