@@ -9,8 +9,11 @@ Both solve Study B's problem with IPOPT: multiple shooting over the same RK4 ste
 same wheel-speed bounds and the same detected points. States are replayed from one
 closed-loop run of the CasADi backend; at every state each controller makes one step, the
 order alternating, each warm-started from its own previous solution. The table gives the
-median and p95 of the per-step wall time and their ratio. do-mpc is an optional dependency:
-nothing in mpclab or its tests imports this file.
+median and p95 of the per-step wall time and their ratio. A third controller, interleaved
+with the two, is mpclab's backend as ``zumo_bug2`` configures it (``--backend``: 3 SQP steps
+per sample on the single-shooting form of the same NLP, qpOASES): the same objective, bounds
+and horizon, but not solved to convergence. do-mpc is an optional dependency: nothing in
+mpclab or its tests imports this file.
 """
 
 from __future__ import annotations
@@ -79,23 +82,30 @@ def main() -> None:
     ap.add_argument("--experiment", default="zumo_right_hand")
     ap.add_argument("--scenario", default="zumo_wall")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--backend", nargs="*",
+                    default=["controller=casadi_rti", "controller.sqp_iterations=3"],
+                    help="overrides of the third controller (zumo_bug2's backend)")
     args = ap.parse_args()
     register_all()
     over = [f"+experiment={args.experiment}", f"scenario={args.scenario}", "recorder=none",
             "progress=false", "figures.enabled=false"]
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config", overrides=over)
+        cfg_b = compose(config_name="config", overrides=over + list(args.backend))
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         ref = run_experiment(cfg, tmp)
     labels = ["x", "y", "theta"]
     states = ref.steps[ref.steps["status"] != "final"][labels].to_numpy()
-    times = {"mpclab_casadi": [], "do_mpc": []}
+    names = ("mpclab_casadi", "do_mpc", "mpclab_backend")
+    times = {n: [] for n in names}
     for rep in range(args.repeats):
         run = build_run(cfg)
         ctrl, scen = run.controller, run.scenario
         ctrl.reset(states[0])
+        ctrl_b = build_run(cfg_b).controller
+        ctrl_b.reset(states[0])
         mpc, tvp = dompc_controller(run)
         mpc.x0 = states[0]
         mpc.set_initial_guess()
@@ -106,24 +116,28 @@ def main() -> None:
             tvp["_tvp", :, "det"] = det
             tvp["_tvp", :, "mask"] = mask
             tvp["_tvp", :, "p0"] = x
-            order = ("mpclab_casadi", "do_mpc")
-            if (k + rep) % 2:
-                order = order[::-1]
+            order = names[(k + rep) % 3:] + names[:(k + rep) % 3]  # rotate the order
             for who in order:
                 t0 = time.perf_counter()
                 if who == "mpclab_casadi":
                     ctrl.step(k * ctrl.dt, x, ctx)
+                elif who == "mpclab_backend":
+                    ctrl_b.step(k * ctrl.dt, x, ctx)
                 else:
                     mpc.make_step(x.reshape(-1, 1))
                 times[who].append(time.perf_counter() - t0)
-    a, b = (np.asarray(times[n]) * 1e3 for n in ("mpclab_casadi", "do_mpc"))
+    a, b, c = (np.asarray(times[n]) * 1e3 for n in names)
     print(f"{args.experiment} on {args.scenario}: {len(states)} states x {args.repeats} repeats")
     print("| controller | median ms | p95 ms |")
     print("|---|---|---|")
-    for name, v in (("mpclab casadi (IPOPT)", a), ("do-mpc (IPOPT)", b)):
+    backend = " ".join(args.backend)
+    for name, v in (("mpclab casadi (IPOPT)", a), ("do-mpc (IPOPT)", b),
+                    (f"mpclab casadi ({backend})", c)):
         print(f"| {name} | {np.median(v):.2f} | {np.percentile(v, 95):.2f} |")
-    print(f"ratio do-mpc / mpclab, median per step: {np.median(b) / np.median(a):.2f}; "
-          f"of medians of paired steps: {np.median(b / a):.2f}")
+    for label, v in (("mpclab IPOPT", a), ("mpclab backend", c)):
+        print(f"ratio do-mpc / {label}, of median per-step times: "
+              f"{np.median(b) / np.median(v):.2f}; median of paired ratios: "
+              f"{np.median(b / v):.2f}")
 
 
 if __name__ == "__main__":
