@@ -79,7 +79,9 @@ def plot_arrival_vs_compute(
     if len(xs) and (xs > 0).all() and xs.max() > 20 * xs.min():  # backends decades apart
         axf.set_xscale("log")
         axf.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    title = ", ".join(sorted(df["experiment"].dropna().astype(str).unique())) or "sweep"
+    names = sorted(df["experiment"].dropna().astype(str).unique())
+    title = ", ".join(names) if len(names) <= 3 else f"{len(names)} experiments"
+    title = title or "sweep"
     ax.set_title(f"{title}: arrival time against compute ({len(df)} runs)")
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
