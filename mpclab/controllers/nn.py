@@ -70,16 +70,24 @@ class NNController(Controller):
         self._w = [np.ascontiguousarray(np.column_stack([wi, bi])) for wi, bi in zip(w, b,
                                                                                     strict=True)]
         self._n_rays = self.mlp.n_in - n_features(self.features, 0)
-        # buffers reused every step: the features and each layer's output, each with the 1
+        self._ranges_shape = (self._n_rays,)
+        # buffers reused every step: the features and each layer's output, each with the 1;
+        # the step walks this precomputed plan: (weights, input, output view, activate?)
         self._z = np.ones(self.mlp.n_in + 1)
-        self._h = [np.ones(wi.shape[0] + 1) for wi in w]
+        bufs = [self._z] + [np.ones(wi.shape[0] + 1) for wi in w]
+        last = len(w) - 1
+        self._layers = [(wk, bufs[i], bufs[i + 1][:-1], i < last)
+                        for i, wk in enumerate(self._w)]
+        self._out = bufs[-1][:-1]
+        act = self.mlp.activation
+        self._act = ((lambda a: np.tanh(a, out=a)) if act is Activation.tanh
+                     else (lambda a: np.copyto(a, activate(act, a))))
         self._no_plan = np.zeros((0, plant.nu))
-        self._tanh = self.mlp.activation is Activation.tanh
 
     def _features(self, x: FloatArray, ctx: StepContext) -> FloatArray:
         """The same vector as :func:`mpclab.approx.features.features`, built in place."""
         r = ctx.ranges
-        if r.shape != (self._n_rays,):
+        if r.shape != self._ranges_shape:
             raise ConfigError(f"NN was trained on {self._n_rays} rays, the scenario's sensor "
                               f"gives {r.shape[0]}")
         z, n = self._z, self._n_rays
@@ -99,20 +107,15 @@ class NNController(Controller):
         return z
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
-        h = self._features(x, ctx)
-        last = len(self._w) - 1
-        for i, w in enumerate(self._w):
-            out = self._h[i][:-1]  # the trailing 1 stays for the next layer's bias
-            np.dot(w, h, out=out)
-            if i < last:
-                if self._tanh:
-                    np.tanh(out, out=out)
-                else:
-                    out[:] = activate(self.mlp.activation, out)
-            h = self._h[i]
-        u = self._h[-1][:-1].copy()
-        for v in u:
+        self._features(x, ctx)
+        for w, src, dst, hidden in self._layers:
+            np.dot(w, src, out=dst)  # the trailing 1 of src multiplies the bias column
+            if hidden:
+                self._act(dst)
+        u = self._out.copy()
+        for v in u.tolist():
             if v != v:  # NaN from a degenerate input (e.g. a range of 0 inside a disc)
                 return self._failed("nan_output", x)
         np.minimum(np.maximum(u, self.plant.u_lb, out=u), self.plant.u_ub, out=u)
         return ControlStep(u=u, x_pred=x[None, :], u_pred=self._no_plan, status="optimal")
+
