@@ -9,8 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import CONF, compose_cfg
 
+from conftest import CONF, compose_cfg
 from mpclab.experiment import run_experiment
 from mpclab.recording.base import Recorder
 

@@ -14,8 +14,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import ROOT, compose_cfg
 from hydra.errors import HydraException
+
+from conftest import ROOT, compose_cfg
 
 pytestmark = pytest.mark.slow
 

@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 
 from conftest import compose_cfg
-
 from mpclab.sweeps import jobs
 
 BASE = ["+experiment=car_cvxpy", "+ci=smoke"]
