@@ -56,7 +56,7 @@ def write(
 def write_summary(out_dir: Path, summary: dict[str, Any]) -> None:
     """Write ``summary.json`` atomically (a reader never sees half a file)."""
     tmp = Path(out_dir) / (SUMMARY + ".tmp")
-    tmp.write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
+    tmp.write_text(json.dumps(jsonable(summary), indent=2, allow_nan=False) + "\n")
     tmp.replace(Path(out_dir) / SUMMARY)
 
 
@@ -72,14 +72,14 @@ def read_horizons(run_dir: Path) -> pd.DataFrame:
     return pd.read_parquet(Path(run_dir) / HORIZONS)
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
     """NaN/inf become null so summary.json is strict JSON."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if hasattr(value, "item"):  # numpy scalars
-        return _jsonable(value.item())
+        return jsonable(value.item())
     return value

@@ -56,7 +56,10 @@ class StageCost:
     """The expert's objective evaluated on a closed-loop trajectory, one stage per step.
 
     Stage ``k`` is the objective over a one-step horizon ``X = [x_k, x_k+1]``, ``U = [u_k]``
-    with the detections seen at ``x_k``: what the expert charges for the step actually taken.
+    with the detections seen at ``x_k``: what the expert charges for the step actually taken,
+    less what it charges for a step resting at the goal with nothing in sight. The offset
+    makes every stage >= 0 (J1 is ``-C1 exp(-d/L1)``, negative, so a raw sum would reward
+    slow runs for their many steps); it changes no optimum.
     """
 
     def __init__(self, expert_cfg: Any, max_detections: int = 20) -> None:
@@ -71,6 +74,9 @@ class StageCost:
         self.f = ca.Function("stage", [X, U, goal, det, mask], [cost])
         self.M = M
         self._ip = [plant.state_index(s) for s in plant.position]
+        g = self.run.scenario.goal
+        self._rest = float(self.f(np.column_stack([g, g]), np.zeros(nu), g,
+                                  np.zeros((2, M)) + 1e3, np.zeros(M)))
 
     def __call__(self, steps: pd.DataFrame) -> float:
         plant, scen = self.run.plant, self.run.scenario
@@ -84,7 +90,7 @@ class StageCost:
             mask = np.zeros(self.M)
             mask[: len(det)] = 1.0
             X = np.column_stack([xs[k], xs[k + 1]])
-            total += float(self.f(X, us[k], scen.goal, pad.T, mask))
+            total += float(self.f(X, us[k], scen.goal, pad.T, mask)) - self._rest
         return total
 
 

@@ -29,7 +29,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
 
@@ -38,6 +37,7 @@ from mpclab.approx.export_c import to_c
 from mpclab.approx.mlp import MLP
 from mpclab.approx.train import TrainConf, train
 from mpclab.experiment import build_run
+from mpclab.record import jsonable
 
 ROOT = Path(__file__).resolve().parents[2]
 STAGES = ("data", "train", "dagger", "eval")
@@ -241,13 +241,11 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
                   lt.to_markdown(index=False, floatfmt=".3g"), ""]
         summary["layouts"] = layout_rows
     (pub / "evaluation.md").write_text("\n".join(lines))
-    (pub / "evaluation.json").write_text(json.dumps(summary, indent=2, default=_plain) + "\n")
-    cmp.pairs.to_csv(pub / "pairs.csv", index=False)
+    (pub / "evaluation.json").write_text(
+        json.dumps(jsonable(summary), indent=2, allow_nan=False, default=str) + "\n"
+    )
+    cmp.pairs.drop(columns=["dir_mpc", "dir_nn"]).to_csv(pub / "pairs.csv", index=False)
     print("\n".join(lines), flush=True)
-
-
-def _plain(value: Any) -> Any:
-    return value.item() if isinstance(value, np.generic) else str(value)
 
 
 if __name__ == "__main__":
