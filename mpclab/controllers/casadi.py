@@ -34,6 +34,7 @@ from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepCon
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
+from mpclab.quiet import c_stdout_silenced
 from mpclab.registry import component
 
 
@@ -225,7 +226,8 @@ class CasadiMPC(Controller):
         self._lbg, self._ubg = np.concatenate(lbg), np.concatenate(ubg)
         self._M = M
         name, opts = self._solver_setup(extra)
-        self.solver_fn = ca.nlpsol("mpc", name, nlp, opts)
+        with c_stdout_silenced():  # qpOASES prints its banner on construction
+            self.solver_fn = ca.nlpsol("mpc", name, nlp, opts)
         ulb = np.tile(self.plant.u_lb[:, None], (1, T)).ravel("F")
         uub = np.tile(self.plant.u_ub[:, None], (1, T)).ravel("F")
         if self.shooting is Shooting.multiple:

@@ -34,6 +34,10 @@ def plot_path(result: Any, run: Any, path: Path, dpi: int = 110) -> Path:
         ax.plot(h[px], h[py], "-", color="tab:blue", lw=0.7, alpha=0.5)
     ax.plot([], [], "-", color="tab:blue", lw=0.7, label="predicted horizons")
     draw_world(ax, scen)
+    mline = getattr(run.supervisor, "mline", None)
+    if mline is not None:
+        (x0, y0), (x1, y1) = mline
+        ax.plot([x0, x1], [y0, y1], "--", color="tab:gray", lw=1.2, label="m-line")
     ax.plot(steps[px], steps[py], "-", color="tab:red", lw=1.8, label="path")
     ax.plot(*scen.x0[[plant.state_index(px), plant.state_index(py)]], "o", color="k",
             label="start")
@@ -44,7 +48,7 @@ def plot_path(result: Any, run: Any, path: Path, dpi: int = 110) -> Path:
     ax.set_title(f"{s.get('experiment', '')} on {scen.name}: {when}")
     ax.set_xlabel(f"{px} [m]")
     ax.set_ylabel(f"{py} [m]")
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
