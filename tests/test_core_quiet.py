@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
-from conftest import compose_cfg
-from mpclab.experiment import build_run
+from conftest import ROOT
 from mpclab.quiet import c_stdout_silenced
 
 
@@ -17,7 +18,11 @@ def test_c_level_output_is_silenced_and_restored(capfd) -> None:
     assert "hidden" not in out and "visible again" in out
 
 
-def test_building_the_sqp_backend_prints_no_banner(capfd) -> None:
-    build_run(compose_cfg(["+experiment=zumo_bug2", "recorder=none"]))
-    out = capfd.readouterr().out
-    assert "qpOASES" not in out
+def test_the_main_experiment_prints_no_banner(tmp_path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "mpclab", "+experiment=zumo_bug2", "+ci=smoke",
+         f"hydra.run.dir={tmp_path}"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "qpOASES" not in proc.stdout and "qpOASES" not in proc.stderr
