@@ -1,1 +1,1 @@
-"""Solver backends: one file per backend, all behind :class:`~mpclab.controllers.base.Controller`."""
+"""Solver backends: one file per backend, each a :class:`~mpclab.controllers.base.Controller`."""

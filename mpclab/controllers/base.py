@@ -150,6 +150,19 @@ class Controller(ABC):
         return res
 
 
+def terminal_rows(plant: Plant, terminal: Any) -> list[tuple[int, float]]:
+    """``controller.terminal_constraint`` (``{state label: value}``) as (state index, value)."""
+    from mpclab.errors import ConfigError
+
+    rows = []
+    for label, value in dict(terminal or {}).items():
+        try:
+            rows.append((plant.state_index(label), float(value)))
+        except ValueError as exc:
+            raise ConfigError(f"controller.terminal_constraint: {exc}") from None
+    return rows
+
+
 def shift(a: FloatArray) -> FloatArray:
     """Drop the first row of a trajectory and repeat the last one."""
     return np.concatenate([a[1:], a[-1:]], axis=0)

@@ -30,7 +30,14 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext, shift
+from mpclab.controllers.base import (
+    Controller,
+    ControlStep,
+    FloatArray,
+    StepContext,
+    shift,
+    terminal_rows,
+)
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -203,12 +210,8 @@ class CasadiMPC(Controller):
         cost = 0
         for j, term in enumerate(self.objective):
             cost += active[j] * term.casadi_cost(X, U, p)
-        for label, value in terminal.items():
-            try:
-                i = self.plant.state_index(label)
-            except ValueError as exc:
-                raise ConfigError(f"controller.terminal_constraint: {exc}") from None
-            g.append(X[i, T] - float(value))
+        for i, value in terminal_rows(self.plant, terminal):
+            g.append(X[i, T] - value)
         lbg = [np.zeros(sum(int(gi.shape[0]) for gi in g))]
         ubg = [lbg[0]]
         if self.shooting is Shooting.single:  # finite state bounds become constraints

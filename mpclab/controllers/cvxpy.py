@@ -15,7 +15,14 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 
-from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext, shift
+from mpclab.controllers.base import (
+    Controller,
+    ControlStep,
+    FloatArray,
+    StepContext,
+    shift,
+    terminal_rows,
+)
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -116,12 +123,7 @@ class CvxpyMPC(Controller):
         ]
         cons += _box(U, self.plant.u_lb, self.plant.u_ub)
         cons += _box(X[:, 1:], self.plant.x_lb, self.plant.x_ub)
-        for label, value in terminal.items():
-            try:
-                i = self.plant.state_index(label)
-            except ValueError as exc:
-                raise ConfigError(f"controller.terminal_constraint: {exc}") from None
-            cons.append(X[i, T] == float(value))
+        cons += [X[i, T] == value for i, value in terminal_rows(self.plant, terminal)]
         params = {"target": self.p_target}
         cost = sum(term.cvxpy_cost(X, U, params) for term in self.objective)
         self.problem = cp.Problem(cp.Minimize(cost), cons)
