@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -20,23 +19,11 @@ def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
     rng = np.random.default_rng(cfg.seed)
     plant = build(cfg.plant, "plant")
     objective = build(cfg.objective, "objective")
-    controller = _build_with_optional(
-        cfg.controller, "controller", plant=plant, objective=objective
-    )
-    scenario = _build_with_optional(cfg.scenario, "scenario", plant=plant, rng=rng)
-    supervisor = _build_with_optional(cfg.supervisor, "supervisor", plant=plant)
-    recorder = _build_with_optional(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
+    controller = build(cfg.controller, "controller", plant=plant, objective=objective)
+    scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
+    supervisor = build(cfg.supervisor, "supervisor", plant=plant)
+    recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     return Run(plant, controller, scenario, supervisor, recorder)
-
-
-def _build_with_optional(node: DictConfig, path: str, **deps: Any) -> Any:
-    """Build ``node``, passing only the dependencies its target's signature accepts."""
-    import inspect
-
-    from hydra.utils import get_object
-
-    params = inspect.signature(get_object(node._target_)).parameters
-    return build(node, path, **{k: v for k, v in deps.items() if k in params})
 
 
 def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:

@@ -46,10 +46,17 @@ def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
 
 
 def build(node: DictConfig, path: str, **deps: Any) -> Any:
-    """Instantiate ``node`` with dependencies ``deps`` after checking every option name."""
+    """Instantiate ``node`` after checking every option name.
+
+    ``deps`` are the objects the caller can inject (plant, objective, rng, ...); each is passed
+    only if the target's signature takes it, so a component asks for what it needs by naming
+    it as a parameter.
+    """
     if node is None or (isinstance(node, DictConfig) and "_target_" not in node):
         raise ConfigError(f"{path}: no _target_ to instantiate; got {OmegaConf.to_yaml(node)!r}")
     check_targets(node, path, tuple(deps))
+    params = inspect.signature(get_object(node["_target_"])).parameters
+    deps = {k: v for k, v in deps.items() if k in params}
     try:
         return instantiate(node, _convert_="all", **deps)
     except InstantiationException as exc:

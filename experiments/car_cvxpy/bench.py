@@ -42,9 +42,8 @@ class RebuildEveryStep(CvxpyMPC):
         for k in range(T):
             cons = [X[:, k + 1] == A[k] @ X[:, k] + B[k] @ U[:, k] + c[k]]
             cons += [cp.norm(U[j, k], "inf") <= p.u_ub[j] for j in range(nu)]
-            cons += [
-                cp.norm(X[i, k + 1], "inf") <= p.x_ub[i] for i in range(nx) if np.isfinite(p.x_ub[i])
-            ]
+            bounded = [i for i in range(nx) if np.isfinite(p.x_ub[i])]
+            cons += [cp.norm(X[i, k + 1], "inf") <= p.x_ub[i] for i in bounded]
             stages.append(cp.Problem(cp.Minimize(0), cons))
         total = sum(stages)
         cost = sum(term.cvxpy_cost(X, U, target) for term in self.objective)

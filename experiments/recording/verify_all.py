@@ -66,12 +66,11 @@ def _scenario(cfg):
     """The scenario alone (as ``build_run`` makes it), for its obstacle count."""
     import numpy as np
 
-    from mpclab.experiment import _build_with_optional
     from mpclab.instantiate import build
 
     plant = build(cfg.plant, "plant")
     rng = np.random.default_rng(cfg.seed)
-    return _build_with_optional(cfg.scenario, "scenario", plant=plant, rng=rng)
+    return build(cfg.scenario, "scenario", plant=plant, rng=rng)
 
 
 def main(argv: list[str] | None = None) -> int:
