@@ -23,7 +23,6 @@ ROOT = HERE.parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from conftest import compose_cfg  # noqa: E402
-
 from mpclab.controllers.base import StepContext  # noqa: E402
 from mpclab.experiment import build_run, run_experiment  # noqa: E402
 

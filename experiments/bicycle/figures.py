@@ -20,7 +20,6 @@ ROOT = HERE.parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from conftest import compose_cfg  # noqa: E402
-
 from mpclab.experiment import build_run  # noqa: E402
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
