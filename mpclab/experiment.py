@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,20 @@ from omegaconf import DictConfig, OmegaConf
 from mpclab import record
 from mpclab.instantiate import build
 from mpclab.sim import Run, RunResult, simulate
+
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def compose(overrides: Sequence[str] = ()) -> DictConfig:
+    """The config ``python -m mpclab OVERRIDES...`` runs with (Hydra's compose API)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    from mpclab.registry import register_all
+
+    register_all()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return hydra_compose(config_name="config", overrides=list(overrides))
 
 
 def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:

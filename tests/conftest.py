@@ -6,21 +6,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
-from omegaconf import DictConfig
 
-from mpclab.registry import register_all
+from mpclab.experiment import CONF_DIR as CONF
+from mpclab.experiment import compose as compose_cfg  # the config the app runs with
 
-ROOT = Path(__file__).resolve().parent.parent
-CONF = ROOT / "conf"
-
-register_all()
-
-
-def compose_cfg(overrides: Sequence[str] = ()) -> DictConfig:
-    """Compose ``conf/config.yaml`` with ``overrides`` (as on the command line)."""
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+ROOT = CONF.parent
 
 
 @pytest.fixture

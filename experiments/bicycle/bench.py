@@ -20,11 +20,9 @@ import pandas as pd
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-from conftest import compose_cfg  # noqa: E402
 from mpclab.controllers.base import StepContext  # noqa: E402
 from mpclab.experiment import build_run, run_experiment  # noqa: E402
+from mpclab.experiment import compose as compose_cfg  # noqa: E402
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
 MODES = {"switched": "bicycle_scheduled", "interpolated": "bicycle_interpolated",

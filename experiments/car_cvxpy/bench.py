@@ -13,20 +13,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import cvxpy as cp
 import numpy as np
 import pandas as pd
-from hydra import compose, initialize_config_dir
 
 from mpclab.controllers.base import ControlStep, StepContext
 from mpclab.controllers.cvxpy import CvxpyMPC
-from mpclab.experiment import build_run
-from mpclab.registry import register_all
+from mpclab.experiment import build_run, compose
 from mpclab.sim import simulate
-
-CONF = Path(__file__).resolve().parents[2] / "conf"
 
 
 class RebuildEveryStep(CvxpyMPC):
@@ -59,9 +54,7 @@ class RebuildEveryStep(CvxpyMPC):
 
 
 def make_runs(overrides: list[str]):
-    register_all()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=["+experiment=car_cvxpy", "recorder=none", *overrides])
+    cfg = compose(["+experiment=car_cvxpy", "recorder=none", *overrides])
     fast = build_run(cfg)
     ref = build_run(cfg)
     c = ref.controller

@@ -21,21 +21,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from hydra import compose, initialize_config_dir
 
-from mpclab.experiment import run_experiment
+from mpclab.experiment import compose, run_experiment
 from mpclab.registry import register_all
 
-CONF = Path(__file__).resolve().parents[2] / "conf"
 RECORDERS = ("none", "rerun")
 
 
 def compose_run(experiment: str, recorder: str, overrides: list[str]):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=[
-            f"+experiment={experiment}", f"recorder={recorder}", "figures.enabled=false",
-            "progress=false", *overrides,
-        ])
+    return compose([f"+experiment={experiment}", f"recorder={recorder}", "figures.enabled=false",
+                    "progress=false", *overrides])
 
 
 def timed_run(cfg, out: Path) -> tuple[float, dict]:

@@ -17,9 +17,10 @@ import tempfile
 from pathlib import Path
 
 import pandas as pd
-from bench import CONF, compose_run, timed_run
+from bench import compose_run, timed_run
 from rerun.chunk import RrdReader
 
+from mpclab.experiment import CONF_DIR as CONF
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.rerun import RRD
 from mpclab.registry import register_all

@@ -20,13 +20,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from hydra import compose, initialize_config_dir  # noqa: E402
 
-from mpclab.experiment import build_run, run_experiment  # noqa: E402
+from mpclab.experiment import build_run, compose, run_experiment  # noqa: E402
 from mpclab.registry import register_all  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-CONF = HERE.parent.parent / "conf"
 
 RUNS = [
     (exp, scen, seed)
@@ -46,8 +44,7 @@ def compose_run(exp: str, scen: str | None, seed: int) -> object:
             f"seed={seed}"]
     if scen is not None:
         over.append(f"scenario={scen}")
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=over)
+    return compose(over)
 
 
 def draw(result: object, run: object, path: Path) -> None:

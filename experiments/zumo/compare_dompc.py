@@ -24,15 +24,13 @@ import warnings
 
 import casadi as ca
 import numpy as np
-from hydra import compose, initialize_config_dir
 
 from mpclab.controllers.base import StepContext
-from mpclab.experiment import build_run, run_experiment
+from mpclab.experiment import build_run, compose, run_experiment
 from mpclab.registry import register_all
 
 warnings.filterwarnings("ignore")
 import do_mpc  # noqa: E402
-from bench import CONF  # noqa: E402
 
 
 def dompc_controller(run, names_active=None):
@@ -89,9 +87,8 @@ def main() -> None:
     register_all()
     over = [f"+experiment={args.experiment}", f"scenario={args.scenario}", "recorder=none",
             "progress=false", "figures.enabled=false"]
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=over)
-        cfg_b = compose(config_name="config", overrides=over + list(args.backend))
+    cfg = compose(over)
+    cfg_b = compose(over + list(args.backend))
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:

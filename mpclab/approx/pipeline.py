@@ -36,7 +36,7 @@ from mpclab.approx import dataset, evaluate
 from mpclab.approx.export_c import to_c
 from mpclab.approx.mlp import MLP
 from mpclab.approx.train import TrainConf, train
-from mpclab.experiment import build_run
+from mpclab.experiment import build_run, compose
 from mpclab.record import jsonable
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -108,14 +108,8 @@ def sweep(experiment: str, seeds: range, out: Path, n_jobs: int, extra: list[str
 
 def expert_cfg(conf: PipelineConf, extra: list[str] = ()) -> Any:
     """The expert's composed config (as its sweep jobs see it)."""
-    from hydra import compose, initialize_config_dir
-
-    from mpclab.registry import register_all
-
-    register_all()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose("config", overrides=[f"+experiment={conf.data.experiment}",
-                                            "recorder=none", *conf.data.overrides, *extra])
+    return compose([f"+experiment={conf.data.experiment}", "recorder=none",
+                    *conf.data.overrides, *extra])
 
 
 def label(conf: PipelineConf, visited: pd.DataFrame) -> pd.DataFrame:
