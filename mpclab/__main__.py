@@ -30,6 +30,10 @@ def main(cfg: DictConfig) -> dict:
 
     hc = HydraConfig.get()
     out_dir = Path(hc.runtime.output_dir)
+    if hc.runtime.choices.get("experiment") is None:
+        names = sorted(p.stem for p in (Path(CONF_DIR) / "experiment").glob("*.yaml"))
+        log.warning("no +experiment=NAME given: running the bare defaults (Study A's car "
+                    "without its terminal constraint). Experiments: %s", ", ".join(names))
     if hc.mode == RunMode.MULTIRUN:
         from mpclab.sweeps.jobs import run_job
 
