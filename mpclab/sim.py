@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.controllers.base import Controller, ControlStep, StepContext
+from mpclab.controllers.base import OK_STATUSES, Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.supervisors.base import NoSupervisor, Supervisor
@@ -107,11 +107,11 @@ def sense(run: Run, t: float, x: np.ndarray) -> StepContext:
     """What the controller is given at ``(t, x)``: sensor readings, the supervisor's choice
     of objective terms (the supervisor's state advances) and the target over the horizon."""
     scen, ctrl = run.scenario, run.controller
-    detections = scen.detect(x)
+    detections, ranges = scen.sense(x)
     mode, active = run.supervisor.update(t, x, detections)
     return StepContext(
         goal=scen.goal, target=scen.target(t, ctrl.horizon, ctrl.dt), detections=detections,
-        ranges=scen.ranges(x), active=active, mode=mode,
+        ranges=ranges, active=active, mode=mode,
     )
 
 
@@ -197,7 +197,7 @@ def _summary(
     total = float(solve.sum())
     ms = solve * 1e3
     clearance = steps["clearance_m"].to_numpy()
-    failures = int((~calls["status"].isin(["optimal"])).sum())
+    failures = int((~calls["status"].isin(list(OK_STATUSES))).sum())
     return {
         "status": status,
         "arrived": status == "arrived",

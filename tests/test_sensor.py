@@ -85,6 +85,11 @@ def test_obstacle_scenario_hooks() -> None:
     # ray 15 (270 deg from heading +x) looks straight down at the disc's top (0.4, 0.65)
     assert scen.rays(x0)[15] == pytest.approx([0.4, 0.65])
     assert scen.detect(x0).shape[1] == 2 and len(scen.detect(x0)) >= 1
+    # the loop's single reading equals the separate hooks
+    det, ranges = scen.sense(x0)
+    np.testing.assert_array_equal(det, scen.detect(x0))
+    np.testing.assert_array_equal(ranges, scen.ranges(x0))
+    assert ranges[15] == pytest.approx(0.15)
 
 
 def test_stall_rule() -> None:

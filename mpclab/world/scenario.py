@@ -112,6 +112,10 @@ class Scenario:
         """Range sensor reading per ray ``(n_rays,)``, ``inf`` where nothing is seen."""
         return np.zeros(0)
 
+    def sense(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``(detect(x), ranges(x))`` from one sensor reading (what the loop asks each step)."""
+        return self.detect(x), self.ranges(x)
+
     def collided(self, x: FloatArray) -> bool:
         return False
 

@@ -91,17 +91,20 @@ class RangeSensor:
         dist = ray_disc_distances((x, y), self.angles(theta), discs)
         return np.where(dist <= self.max_range, dist, np.inf)
 
+    def points(self, pose: npt.ArrayLike, ranges: npt.ArrayLike) -> FloatArray:
+        """Ray end points ``(n_rays, 2)`` of a reading: the hit point, or the point at max range."""
+        x, y, theta = (float(v) for v in np.asarray(pose, dtype=float)[:3])
+        ranges = np.asarray(ranges, dtype=float)
+        reach = np.where(np.isfinite(ranges), ranges, self.max_range)
+        ang = self.angles(theta)
+        return np.stack([x + reach * np.cos(ang), y + reach * np.sin(ang)], axis=1)
+
     def end_points(
         self, pose: npt.ArrayLike, discs: npt.ArrayLike
     ) -> tuple[FloatArray, FloatArray]:
         """Ray end points ``(n_rays, 2)`` (hit point or the point at max range) and hit mask."""
-        x, y, theta = (float(v) for v in np.asarray(pose, dtype=float)[:3])
-        dist = self.distances((x, y, theta), discs)
-        hit = np.isfinite(dist)
-        reach = np.where(hit, dist, self.max_range)
-        ang = self.angles(theta)
-        pts = np.stack([x + reach * np.cos(ang), y + reach * np.sin(ang)], axis=1)
-        return pts, hit
+        dist = self.distances(pose, discs)
+        return self.points(pose, dist), np.isfinite(dist)
 
     def detect(self, pose: npt.ArrayLike, discs: npt.ArrayLike) -> FloatArray:
         """Detected points ``(l, 2)``: the hit points of the rays that hit, in ray order."""

@@ -164,6 +164,12 @@ class ObstacleScenario(Scenario):
         """Range of every ray ``(n_rays,)`` [m], ``inf`` where a ray sees nothing."""
         return self.sensor.distances(self.pose(x), self.obstacles)
 
+    def sense(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Detected points and every ray's range, from one sensor evaluation."""
+        pose = self.pose(x)
+        ranges = self.sensor.distances(pose, self.obstacles)
+        return self.sensor.points(pose, ranges)[np.isfinite(ranges)], ranges
+
     def rays(self, x: FloatArray) -> FloatArray:
         """Ray end points ``(n_rays, 2)``: the hit point, or the point at maximum range."""
         return self.sensor.end_points(self.pose(x), self.obstacles)[0]
