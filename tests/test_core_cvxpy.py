@@ -93,8 +93,66 @@ def test_osqp_and_clarabel_agree() -> None:
     np.testing.assert_allclose(r1.u, r2.u, atol=1e-4)
 
 
-def test_solver_exception_falls_back_to_shifted_plan(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_direct_path_equals_problem_solve() -> None:
+    """The compiled-data path and ``Problem.solve`` give the same plan and cost."""
+    _, direct = make()
+    _, problem = make(solve_via="problem")
+    assert direct.direct is not None and problem.direct is None
+    car = direct.plant
+    x = X0
+    for k in range(5):  # a few closed-loop steps, so the LTV model varies
+        r1, r2 = direct.step(0.1 * k, x, ctx()), problem.step(0.1 * k, x, ctx())
+        assert r1.ok and r2.ok
+        np.testing.assert_allclose(r1.u_pred, r2.u_pred, atol=1e-7)
+        np.testing.assert_allclose(r1.x_pred, r2.x_pred, atol=1e-7)
+        assert r1.cost == pytest.approx(r2.cost, rel=1e-9)
+        x = car.step(x, r1.u, 0.1)
+
+
+def test_direct_path_data_equal_cvxpy_at_random_parameters() -> None:
     _, ctrl = make()
+    data, _, _ = ctrl.problem.get_problem_data(cp.CLARABEL)
+    rng = np.random.default_rng(3)
+    for p in ctrl.problem.parameters():
+        p.value = rng.normal(size=p.shape)
+    P, q, d, A, b = ctrl.direct.data()
+    P_ref, q_ref, d_ref, A_ref, b_ref = data[cp.settings.PARAM_PROB].apply_parameters(
+        quad_obj=True
+    )
+    np.testing.assert_allclose(P.toarray(), np.triu(P_ref.toarray()), atol=1e-12)
+    np.testing.assert_allclose(A.toarray(), -A_ref.toarray(), atol=1e-12)
+    np.testing.assert_allclose(q, q_ref, atol=1e-12)
+    np.testing.assert_allclose(b, b_ref, atol=1e-12)
+    assert d == pytest.approx(d_ref)
+
+
+def test_direct_path_needs_clarabel_and_known_settings() -> None:
+    with pytest.raises(ConfigError, match="solve_via=direct needs solver CLARABEL, not OSQP"):
+        make(solver="OSQP", solve_via="direct")
+    with pytest.raises(ConfigError, match=r"unknown Clarabel setting 'max_iters'.*max_iter"):
+        make(solver_options={"max_iters": 10})
+    _, ctrl = make(solver="OSQP")  # auto: OSQP goes through Problem.solve
+    assert ctrl.direct is None
+
+
+@pytest.mark.parametrize("via", ["direct", "problem"])
+def test_infeasible_qp_falls_back_with_its_status(via: str) -> None:
+    """A real infeasible QP: at 100 m/s, |a| <= 10 cannot stop the car within 1 s."""
+    _, ctrl = make(solve_via=via)
+    fast = X0.copy()
+    fast[3] = 100.0
+    res = ctrl.step(0.0, fast, ctx())
+    assert res.status == "infeasible" and res.fallback and not res.ok
+    np.testing.assert_array_equal(res.u, np.zeros(2))  # no previous plan: zero input
+    first = ctrl.step(0.1, X0, ctx())
+    assert first.ok
+    again = ctrl.step(0.2, fast, ctx())
+    assert again.status == "infeasible" and again.fallback
+    np.testing.assert_array_equal(again.u, first.u_pred[1])  # the previous plan, shifted
+
+
+def test_solver_exception_falls_back_to_shifted_plan(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, ctrl = make(solve_via="problem")
     first = ctrl.step(0.0, X0, ctx())
 
     def broken(*args, **kwargs):
@@ -103,14 +161,28 @@ def test_solver_exception_falls_back_to_shifted_plan(monkeypatch: pytest.MonkeyP
     monkeypatch.setattr(ctrl.problem, "solve", broken)
     res = ctrl.step(0.1, X0, ctx())
     assert res.status == "solver_error" and res.fallback and not res.ok
+    assert res.info["error"] == "injected failure"
     np.testing.assert_array_equal(res.u, first.u_pred[1])
     np.testing.assert_array_equal(res.u_pred[:-1], first.u_pred[1:])
     again = ctrl.step(0.2, X0, ctx())  # a second failure shifts the fallback plan again
     np.testing.assert_array_equal(again.u, first.u_pred[2])
 
 
-def test_failure_with_no_plan_gives_zero_input(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_direct_solver_crash_is_survived(monkeypatch: pytest.MonkeyPatch) -> None:
     _, ctrl = make()
+    first = ctrl.step(0.0, X0, ctx())
+
+    def crash():
+        raise RuntimeError("injected crash")
+
+    monkeypatch.setattr(ctrl.direct, "solve", crash)
+    res = ctrl.step(0.1, X0, ctx())
+    assert res.status == "exception:RuntimeError" and res.fallback
+    np.testing.assert_array_equal(res.u, first.u_pred[1])
+
+
+def test_failure_with_no_plan_gives_zero_input(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, ctrl = make(solve_via="problem")
 
     def infeasible(*args, **kwargs):
         ctrl.problem._status = cp.INFEASIBLE  # what a solver reports for an infeasible QP

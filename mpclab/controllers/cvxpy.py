@@ -2,11 +2,15 @@
 
 Per step only parameter values change: the initial state, the LTV model ``(A_k, B_k, c_k)``
 along the previous plan shifted by one step, and the target. The problem is compiled once
-(``Problem.is_dpp()`` is checked at construction), so a solve skips canonicalization.
+(``Problem.is_dpp()`` is checked at construction), so a solve skips canonicalization. With
+Clarabel, each step by default goes straight from the compiled parameter-to-data map to a
+persistent Clarabel solver (:mod:`mpclab.controllers.cvxpy_direct`), skipping
+``Problem.solve``'s fixed per-call cost; ``solve_via: problem`` uses ``Problem.solve``.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -23,6 +27,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
+from mpclab.controllers.cvxpy_direct import DirectClarabel
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -32,6 +37,15 @@ from mpclab.registry import component
 class CvxpySolver(StrEnum):
     CLARABEL = "CLARABEL"
     OSQP = "OSQP"
+
+
+class SolveVia(StrEnum):
+    #: ``direct`` for Clarabel, ``problem`` for other solvers
+    auto = "auto"
+    #: the compiled data straight into a persistent Clarabel solver (Clarabel only)
+    direct = "direct"
+    #: ``Problem.solve`` every step
+    problem = "problem"
 
 
 class Linearization(StrEnum):
@@ -52,6 +66,7 @@ class CvxpyConf:
     linearize_about: Linearization = Linearization.shifted_plan
     terminal_constraint: dict[str, float] = field(default_factory=dict)
     solver_options: dict[str, Any] = field(default_factory=dict)
+    solve_via: SolveVia = SolveVia.auto
 
 
 @component("controller", "cvxpy", CvxpyConf)
@@ -75,7 +90,11 @@ class CvxpyMPC(Controller):
     terminal_constraint
         ``{state label: value}`` imposed on the last predicted state.
     solver_options
-        Extra keyword options for the solver.
+        Extra keyword options for the solver (Clarabel settings by name, ``max_iter``, ...).
+    solve_via
+        ``auto`` (default: ``direct`` with Clarabel, else ``problem``), ``direct`` (the
+        compiled data straight into a persistent Clarabel solver) or ``problem``
+        (``Problem.solve`` every step). Both give the same solution.
     """
 
     def __init__(
@@ -90,6 +109,7 @@ class CvxpyMPC(Controller):
         linearize_about: Linearization | str = Linearization.shifted_plan,
         terminal_constraint: Mapping[str, float] | None = None,
         solver_options: Mapping[str, Any] | None = None,
+        solve_via: SolveVia | str = SolveVia.auto,
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.solver = CvxpySolver(solver).value
@@ -102,6 +122,26 @@ class CvxpyMPC(Controller):
         self.objective = objective
         objective.bind(plant, "cvxpy")
         self._build(dict(terminal_constraint or {}))
+        self.direct = self._direct(SolveVia(solve_via))
+
+    def _direct(self, via: SolveVia) -> DirectClarabel | None:
+        clarabel = self.solver == CvxpySolver.CLARABEL
+        if via is SolveVia.problem or (via is SolveVia.auto and not clarabel):
+            return None
+        if not clarabel:
+            raise ConfigError(
+                f"controller.solve_via=direct needs solver CLARABEL, not {self.solver}; "
+                "use solve_via=problem (or auto) for other solvers"
+            )
+        try:
+            return DirectClarabel(self.problem, [self.X, self.U], self.solver_options)
+        except ConfigError:
+            raise
+        except ValueError as exc:
+            if via is SolveVia.direct:
+                raise ConfigError(f"controller.solve_via=direct is not possible: {exc}") from exc
+            warnings.warn(f"solving through Problem.solve: {exc}", stacklevel=2)
+            return None
 
     def _build(self, terminal: dict[str, float]) -> None:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
@@ -160,23 +200,30 @@ class CvxpyMPC(Controller):
                 [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
                 axis=1,
             )
-            try:
-                self.problem.solve(
-                    solver=self.solver, warm_start=self.warm_start, **self.solver_options
-                )
-            except cp.error.SolverError as exc:
-                return self._failed("solver_error", x, str(exc))
-            status = str(self.problem.status)
-            if status != cp.OPTIMAL or self.U.value is None:
-                return self._failed(status, x, "")
-            Xbar, Ubar = self.X.value.T[:-1], self.U.value.T
+            status, values, cost, message = self._solve_qp()
+            if status != cp.OPTIMAL or values is None:
+                return self._failed(status, x, message)
+            Xv, Uv = values
+            Xbar, Ubar = Xv.T[:-1], Uv.T
         return ControlStep(
-            u=self.U.value[:, 0].copy(),
-            x_pred=self.X.value.T.copy(),
-            u_pred=self.U.value.T.copy(),
-            status="optimal",
-            cost=float(self.problem.value),
+            u=Uv[:, 0].copy(), x_pred=Xv.T.copy(), u_pred=Uv.T.copy(), status="optimal", cost=cost
         )
+
+    def _solve_qp(self) -> tuple[str, list[FloatArray] | None, float, str]:
+        """Solve at the parameters' current values: ``(status, [X, U] or None, objective,
+        error message)``."""
+        if self.direct is not None:
+            return (*self.direct.solve(), "")
+        try:
+            self.problem.solve(
+                solver=self.solver, warm_start=self.warm_start, **self.solver_options
+            )
+        except cp.error.SolverError as exc:
+            return "solver_error", None, float("nan"), str(exc)
+        status = str(self.problem.status)
+        if self.U.value is None:
+            return status, None, float("nan"), ""
+        return status, [self.X.value, self.U.value], float(self.problem.value), ""
 
 
 def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint]:
