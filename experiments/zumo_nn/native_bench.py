@@ -1,0 +1,171 @@
+"""Per-step time of the MPC expert and of its NN imitation, in the loop and compiled.
+
+From the same held-out starts (seeds 100000, 100001, ...; the data used 0-999), runs the
+expert (``+experiment=zumo_nn_data``) and the net (``+experiment=zumo_nn``) alternately and
+pools each one's in-loop step times (what ``steps.parquet`` records: the Python call of
+``Controller.step``), and the time of the expert's call into its compiled solver alone.
+Then it exports the net with :mod:`mpclab.approx.export_c`, compiles it with the system C
+compiler (``-O2``, and ``-O3 -march=native``), and times the C function in a C loop on the
+feature vectors of every state the expert visited, checking its outputs against NumPy's.
+The table gives medians, p95 and the expert's median (whole step, and solver call only)
+over each.
+
+    uv run python experiments/zumo_nn/native_bench.py [--starts 20] [--reps 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from mpclab.approx.export_c import to_c
+from mpclab.approx.features import features
+from mpclab.approx.mlp import MLP
+from mpclab.experiment import build_run, compose
+from mpclab.sim import simulate
+
+HERE = Path(__file__).resolve().parent
+FIRST_HELD_OUT_SEED = 100_000
+
+HARNESS = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+
+void NAME(const double *in, double *out);
+
+/* usage: bench ROWS.bin N_ROWS N_IN N_OUT REPS TIMES.bin OUT.bin
+ * Times every call on its own (clock_gettime around it, so the clock's ~20 ns is included). */
+int main(int argc, char **argv)
+{
+    if (argc != 8) return 2;
+    long n = atol(argv[2]), n_in = atol(argv[3]), n_out = atol(argv[4]), reps = atol(argv[5]);
+    double *rows = malloc(sizeof(double) * n * n_in), *out = malloc(sizeof(double) * n * n_out);
+    double *times = malloc(sizeof(double) * n * reps);
+    FILE *f = fopen(argv[1], "rb");
+    if (!f || fread(rows, sizeof(double), n * n_in, f) != (size_t)(n * n_in)) return 3;
+    fclose(f);
+    struct timespec a, b;
+    for (long r = 0; r < reps; ++r)
+        for (long i = 0; i < n; ++i) {
+            clock_gettime(CLOCK_MONOTONIC, &a);
+            NAME(rows + i * n_in, out + i * n_out);
+            clock_gettime(CLOCK_MONOTONIC, &b);
+            times[r * n + i] = (b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec);
+        }
+    f = fopen(argv[6], "wb"); fwrite(times, sizeof(double), n * reps, f); fclose(f);
+    f = fopen(argv[7], "wb"); fwrite(out, sizeof(double), n * n_out, f); fclose(f);
+    return 0;
+}
+"""
+
+FLAGS = {"C, cc -O2": ["-O2"], "C, cc -O3 -march=native": ["-O3", "-march=native"]}
+
+
+class _TimedCalls:
+    """A CasADi solver function whose calls are timed (``stats`` passes through)."""
+
+    def __init__(self, fn) -> None:
+        self.fn, self.times = fn, []
+
+    def __call__(self, **kwargs):
+        t0 = time.perf_counter()
+        out = self.fn(**kwargs)
+        self.times.append(time.perf_counter() - t0)
+        return out
+
+    def stats(self):
+        return self.fn.stats()
+
+
+def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """In-loop step times [s] of expert and net, and the expert's visited feature rows."""
+    times: dict[str, list[np.ndarray]] = {"MPC expert (in the loop)": [],
+                                          "MPC expert, solver call only": [],
+                                          "NN, NumPy (in the loop)": []}
+    mlp = MLP.load(weights)
+    kind = mlp.meta.get("features", "study")
+    rows = []
+    for i in range(starts):
+        seed = FIRST_HELD_OUT_SEED + i
+        common = ["recorder=none", "figures.enabled=false", "progress=false", f"seed={seed}"]
+        expert = build_run(compose(["+experiment=zumo_nn_data", *common]))
+        solver_calls = _TimedCalls(expert.controller.solver_fn)
+        expert.controller.solver_fn = solver_calls
+        res = simulate(expert)
+        times["MPC expert, solver call only"].append(np.array(solver_calls.times))
+        times["MPC expert (in the loop)"].append(res.steps["solve_time_s"].dropna().to_numpy())
+        steps = res.steps.dropna(subset=["solve_time_s"])
+        plant, scen = expert.plant, expert.scenario
+        ip = [plant.state_index(s) for s in (*plant.position, plant.heading)]
+        X = steps[list(plant.states)].to_numpy()
+        ranges = np.array([scen.sense(x)[1] for x in X])
+        goal = np.tile(scen.goal[ip], (len(X), 1))
+        rows.append(features(kind, X[:, ip], goal, ranges, mlp.meta.get("min_range", 0.05)))
+        net = build_run(compose(["+experiment=zumo_nn", f"controller.weights={weights}",
+                                 *common]))
+        res = simulate(net)
+        times["NN, NumPy (in the loop)"].append(res.steps["solve_time_s"].dropna().to_numpy())
+        print(f"start {i + 1}/{starts}", file=sys.stderr)
+    return {k: np.concatenate(v) for k, v in times.items()}, np.concatenate(rows)
+
+
+def compiled(mlp: MLP, rows: np.ndarray, reps: int, cc: str) -> dict[str, np.ndarray]:
+    """Per-call times [s] of the exported C net, per set of compiler flags."""
+    out: dict[str, np.ndarray] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        (d / "nn.c").write_text(to_c(mlp, "mpclab_nn"))
+        (d / "bench.c").write_text(HARNESS.replace("NAME", "mpclab_nn"))
+        rows = np.ascontiguousarray(rows, dtype=np.float64)
+        rows.tofile(d / "rows.bin")
+        for name, flags in FLAGS.items():
+            exe = d / "bench"
+            subprocess.run([cc, "-std=c99", *flags, str(d / "nn.c"), str(d / "bench.c"),
+                            "-o", str(exe), "-lm"], check=True)
+            subprocess.run([str(exe), str(d / "rows.bin"), str(len(rows)), str(mlp.n_in),
+                            str(mlp.n_out), str(reps), str(d / "t.bin"), str(d / "u.bin")],
+                           check=True)
+            u = np.fromfile(d / "u.bin").reshape(len(rows), mlp.n_out)
+            gap = float(np.abs(u - mlp.forward(rows)).max())
+            if gap > 1e-9:
+                raise AssertionError(f"{name}: C and NumPy differ by {gap:g}")
+            out[name] = np.fromfile(d / "t.bin") * 1e-9
+    return out
+
+
+def main(argv: list[str] | None = None) -> pd.DataFrame:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--starts", type=int, default=20, help="held-out starts (default 20)")
+    ap.add_argument("--reps", type=int, default=200, help="C calls per visited state")
+    ap.add_argument("--weights", type=Path, default=HERE / "weights.npz")
+    args = ap.parse_args(argv)
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        ap.error("no C compiler (cc or gcc) on PATH")
+    times, rows = closed_loop(args.starts, args.weights.resolve())
+    times.update(compiled(MLP.load(args.weights), rows, args.reps, cc))
+    mpc = np.median(times["MPC expert (in the loop)"])
+    mpc_solver = np.median(times["MPC expert, solver call only"])
+    table = pd.DataFrame([
+        {"step": name, "samples": len(t), "median_us": 1e6 * np.median(t),
+         "p95_us": 1e6 * np.percentile(t, 95), "MPC step / this": mpc / np.median(t),
+         "MPC solver call / this": mpc_solver / np.median(t)}
+        for name, t in times.items()
+    ])
+    print(f"{args.starts} held-out starts, {len(rows)} states the expert visited")
+    print(table.to_markdown(index=False, floatfmt=".4g"))
+    return table
+
+
+if __name__ == "__main__":
+    main()
