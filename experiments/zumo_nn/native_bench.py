@@ -7,6 +7,8 @@ pools each one's in-loop step times (what ``steps.parquet`` records: the Python 
 Then it exports the net with :mod:`mpclab.approx.export_c`, compiles it with the system C
 compiler (``-O2``, and ``-O3 -march=native``), and times the C function in a C loop on the
 feature vectors of every state the expert visited, checking its outputs against NumPy's.
+A controller that returns a constant input, run from the same starts, gives the loop's floor:
+what any step costs in the Python loop (the base class's failure handling, the result).
 The table gives medians, p95 and the expert's median (whole step, and solver call only)
 over each.
 
@@ -29,6 +31,7 @@ import pandas as pd
 from mpclab.approx.export_c import to_c
 from mpclab.approx.features import features
 from mpclab.approx.mlp import MLP
+from mpclab.controllers.base import ControlStep
 from mpclab.experiment import build_run, compose
 from mpclab.sim import simulate
 
@@ -87,11 +90,24 @@ class _TimedCalls:
         return self.fn.stats()
 
 
+class _Constant:
+    """A controller's ``_solve`` that computes nothing: the same input every step."""
+
+    def __init__(self, ctrl) -> None:
+        self.ctrl = ctrl
+        self.u = ctrl.plant.clip_input(np.full(ctrl.plant.nu, 2.0))
+
+    def __call__(self, t, x, ctx) -> ControlStep:
+        return ControlStep(u=self.u.copy(), x_pred=x[None, :], u_pred=self.ctrl._no_plan,
+                           status="optimal")
+
+
 def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """In-loop step times [s] of expert and net, and the expert's visited feature rows."""
     times: dict[str, list[np.ndarray]] = {"MPC expert (in the loop)": [],
                                           "MPC expert, solver call only": [],
-                                          "NN, NumPy (in the loop)": []}
+                                          "NN, NumPy (in the loop)": [],
+                                          "constant input (in the loop)": []}
     mlp = MLP.load(weights)
     kind = mlp.meta.get("features", "study")
     rows = []
@@ -115,6 +131,11 @@ def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.n
                                  *common]))
         res = simulate(net)
         times["NN, NumPy (in the loop)"].append(res.steps["solve_time_s"].dropna().to_numpy())
+        net.controller._solve = _Constant(net.controller)  # the loop's floor for any controller
+        res = simulate(net)
+        times["constant input (in the loop)"].append(
+            res.steps["solve_time_s"].dropna().to_numpy()
+        )
         print(f"start {i + 1}/{starts}", file=sys.stderr)
     return {k: np.concatenate(v) for k, v in times.items()}, np.concatenate(rows)
 
