@@ -123,6 +123,7 @@ class CvxpyMPC(Controller):
         objective.bind(plant, "cvxpy")
         self._build(dict(terminal_constraint or {}))
         self.direct = self._direct(SolveVia(solve_via))
+        self._cold = True  # the next solve starts cold (no warm start from another run)
 
     def _direct(self, via: SolveVia) -> DirectClarabel | None:
         clarabel = self.solver == CvxpySolver.CLARABEL
@@ -177,6 +178,14 @@ class CvxpyMPC(Controller):
             param.value = np.zeros(param.shape)
         self.problem.get_problem_data(self.solver)
 
+    def reset(self, x0: Any) -> None:
+        """Forget the previous plan and anything the solver keeps from the last run (its
+        warm start, the persistent Clarabel solver), so a reused controller repeats a run."""
+        super().reset(x0)
+        self._cold = True
+        if self.direct is not None:
+            self.direct.reset()
+
     def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         prev = self.previous_plan
         if prev is None:
@@ -214,10 +223,9 @@ class CvxpyMPC(Controller):
         error message)``."""
         if self.direct is not None:
             return (*self.direct.solve(), "")
+        warm, self._cold = self.warm_start and not self._cold, False
         try:
-            self.problem.solve(
-                solver=self.solver, warm_start=self.warm_start, **self.solver_options
-            )
+            self.problem.solve(solver=self.solver, warm_start=warm, **self.solver_options)
         except cp.error.SolverError as exc:
             return "solver_error", None, float("nan"), str(exc)
         status = str(self.problem.status)

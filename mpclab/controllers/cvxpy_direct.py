@@ -175,6 +175,11 @@ class DirectClarabel:
 
     # -- solve --------------------------------------------------------------------------------
 
+    def reset(self) -> None:
+        """Build the solver afresh at the next solve (its equilibration is set at build time
+        and kept through updates, so a new run starts from the state a fresh one would)."""
+        self._solver = None
+
     def solve(self) -> tuple[str, list[np.ndarray] | None, float]:
         """Solve at the parameters' current values: ``(status, variable values, objective)``.
 

@@ -1,0 +1,33 @@
+"""A Run simulated twice with the same objects gives the same step log: nothing a solver keeps
+between runs (warm starts, multipliers, a persistent solver's scaling) leaks from one run into
+the next. Benchmarks, DAgger and the evaluation reuse runs this way."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from mpclab import record
+from mpclab.experiment import CONF_DIR, build_run, compose
+from mpclab.sim import simulate
+
+CVXPY_VARIANTS = {
+    "car_cvxpy-clarabel-direct": ["+experiment=car_cvxpy"],
+    "car_cvxpy-clarabel-problem": ["+experiment=car_cvxpy", "controller.solve_via=problem"],
+    "car_cvxpy-osqp": ["+experiment=car_cvxpy", "controller.solver=OSQP"],  # warm-started
+}
+OTHERS = {
+    p.stem: [f"+experiment={p.stem}"]
+    for p in sorted((CONF_DIR / "experiment").glob("*.yaml"))
+    if p.stem != "car_cvxpy"
+}
+
+
+@pytest.mark.parametrize("overrides", [*CVXPY_VARIANTS.values(), *OTHERS.values()],
+                         ids=[*CVXPY_VARIANTS, *OTHERS])
+def test_a_reused_run_repeats_itself(overrides: list[str]) -> None:
+    run = build_run(compose([*overrides, "recorder=none", "figures.enabled=false"]))
+    timing = list(record.TIMING_COLUMNS)
+    first = simulate(run).steps.drop(columns=timing)
+    second = simulate(run).steps.drop(columns=timing)
+    pd.testing.assert_frame_equal(first, second)
