@@ -69,6 +69,26 @@ def test_merge_keeps_every_run_and_reports_runs_without_rows(tmp_path: Path) -> 
     assert len(report.config_hashes) == 1  # seeds differ, the generating config does not
 
 
+def test_rows_keep_the_hash_of_the_config_that_made_them(tmp_path: Path) -> None:
+    """A resumed sweep rewrites .hydra/config.yaml; the rows keep their generating config."""
+    sweep = tmp_path / "sweep"
+    old, new = fake_sweep(sweep, [1, 2])
+    made = dataset.config_hash(old)
+    assert set(pd.read_parquet(old / dataset.ROWS)["config_hash"]) == {made}
+    # what Hydra does when a later sweep with a changed config passes over a finished job
+    cfg = OmegaConf.load(new / ".hydra" / "config.yaml")
+    cfg.controller.horizon = 7
+    OmegaConf.save(cfg, new / ".hydra" / "config.yaml")
+    assert dataset.config_hash(new) != made
+    report = dataset.merge([sweep], tmp_path / "data.parquet")
+    assert report.config_hashes == [made]
+    # rows written without a hash (an older recorder) fall back to the saved config's
+    legacy = pd.read_parquet(new / dataset.ROWS).drop(columns="config_hash")
+    legacy.to_parquet(new / dataset.ROWS, index=False)
+    report = dataset.merge([sweep], tmp_path / "data2.parquet")
+    assert report.config_hashes == sorted({made, dataset.config_hash(new)})
+
+
 def test_merge_of_nothing_is_an_error(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="no run folders"):
         dataset.merge([tmp_path], tmp_path / "x.parquet")

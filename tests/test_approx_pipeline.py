@@ -21,6 +21,10 @@ def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> No
           f"work_dir={work}", f"publish_dir={pub}"])
     data, meta = dataset.read(work / "dataset.parquet")
     assert meta["runs"] == 4 and meta["missing"] == [] and len(data) > 0
+    # the hash each Hydra job's recorder wrote is the hash of the config Hydra saved for it
+    for run_dir, rows in data.groupby("run"):
+        assert set(rows["config_hash"]) == {dataset.config_hash(Path(run_dir))}
+    assert len(meta["config_hashes"]) == 1
     mlp = MLP.load(pub / "weights.npz")
     assert mlp.sizes == [26, 16, 2] and mlp.meta["dagger_rounds"] == 1
     assert "void mpclab_nn(" in (pub / "mpclab_nn.c").read_text()

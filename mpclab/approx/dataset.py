@@ -34,6 +34,8 @@ HASH_IGNORES = ("seed", "hydra")
 @dataclass
 class DatasetRecorderConf:
     _target_: str = "mpclab.approx.dataset.DatasetRecorder"
+    # the injected run config must arrive as data, not be instantiated
+    _recursive_: bool = False
     filename: str = ROWS
 
 
@@ -45,12 +47,19 @@ class DatasetRecorder(Recorder):
     ----------
     out_dir
         Injected run folder.
+    cfg
+        Injected run config; its hash goes into every row (``config_hash``).
     filename
         File written into it.
     """
 
-    def __init__(self, out_dir: Path | None = None, filename: str = ROWS) -> None:
+    def __init__(
+        self, out_dir: Path | None = None, cfg: Any = None, filename: str = ROWS
+    ) -> None:
         self.path = Path(out_dir or ".") / filename
+        # the generating config's hash, taken now: a resumed sweep may rewrite the run's
+        # .hydra/config.yaml later, and the rows must keep the config that made them
+        self.config_hash = hash_config(cfg) if cfg is not None else None
         self._rows: list[np.ndarray] = []
         self._status: list[str] = []
         self._fallback: list[bool] = []
@@ -81,16 +90,24 @@ class DatasetRecorder(Recorder):
         table["status"] = pd.Series(self._status, dtype="string")
         table["fallback"] = np.array(self._fallback, dtype=bool)
         table["run_status"] = summary.get("status", "")
+        if self.config_hash is not None:
+            table["config_hash"] = self.config_hash
         self.path.parent.mkdir(parents=True, exist_ok=True)
         table.to_parquet(self.path, index=False)
 
 
-def config_hash(run_dir: Path) -> str:
-    """Short hash of a run's resolved config without what differs between a sweep's jobs."""
-    cfg = dict(OmegaConf.to_container(OmegaConf.load(Path(run_dir) / ".hydra" / "config.yaml")))
+def hash_config(cfg: Any) -> str:
+    """Short hash of a run's config (interpolations unresolved, as Hydra saves it) without
+    what differs between a sweep's jobs."""
+    data = dict(OmegaConf.to_container(OmegaConf.create(cfg), resolve=False))
     for key in HASH_IGNORES:
-        cfg.pop(key, None)
-    return hashlib.sha256(json.dumps(cfg, sort_keys=True).encode()).hexdigest()[:12]
+        data.pop(key, None)
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def config_hash(run_dir: Path) -> str:
+    """:func:`hash_config` of the config saved in a run folder's ``.hydra/config.yaml``."""
+    return hash_config(OmegaConf.load(Path(run_dir) / ".hydra" / "config.yaml"))
 
 
 def run_dirs(paths: list[Path]) -> list[Path]:
@@ -117,14 +134,14 @@ def merge(paths: list[Path], out: Path) -> MergeReport:
 
     Every run's rows are kept, tagged with ``run`` (folder) and ``seed``; a run without rows
     is listed in the report (and the file's metadata), never dropped silently. The file's
-    metadata also holds the generating configs' hashes.
+    metadata also holds the generating configs' hashes: the one each run's recorder wrote
+    with its rows, or, for rows written without one, the hash of the run's saved config.
     """
     tables, missing, hashes = [], [], set()
     dirs = run_dirs(paths)
     if not dirs:
         raise FileNotFoundError(f"no run folders (with .hydra/config.yaml) below {paths}")
     for d in dirs:
-        h = config_hash(d)
         rows = d / ROWS
         if not rows.exists():
             missing.append(str(d))
@@ -133,8 +150,9 @@ def merge(paths: list[Path], out: Path) -> MergeReport:
         cfg = OmegaConf.load(d / ".hydra" / "config.yaml")
         t.insert(0, "seed", int(cfg.get("seed", -1)))
         t.insert(0, "run", str(d))
-        t["config_hash"] = h
-        hashes.add(h)
+        if "config_hash" not in t:
+            t["config_hash"] = config_hash(d)
+        hashes.update(t["config_hash"].unique().tolist())
         tables.append(t)
     if not tables:
         raise FileNotFoundError(f"none of the {len(dirs)} runs below {paths} wrote {ROWS}")
