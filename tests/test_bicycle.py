@@ -173,10 +173,13 @@ def test_active_set_matches_a_reference_qp_solver() -> None:
 
 
 def test_backend_solvers_agree_in_the_controller() -> None:
-    """closed form, active set (control horizon 1 and 3) and CVXPY give the same inputs."""
+    """closed form, active set (control horizon 1 and 3) and CVXPY (Clarabel on the compiled
+    data, and through Problem.solve) give the same inputs."""
     p = plant()
     rng = np.random.default_rng(6)
     ctrls = {s: controller(p, solver=s) for s in ("closed_form", "active_set", "CLARABEL")}
+    ctrls["problem"] = controller(p, solver="CLARABEL", solve_via="problem")
+    assert ctrls["problem"]._cvx.direct is None and ctrls["CLARABEL"]._cvx.direct is not None
     long = {s: controller(p, solver=s, control_horizon=3) for s in ("auto", "CLARABEL")}
     for _ in range(5):
         x = np.array([*rng.normal(0, 2, 2), rng.uniform(-4, 4), rng.normal(0, 0.2),
@@ -185,6 +188,7 @@ def test_backend_solvers_agree_in_the_controller() -> None:
         u = {s: ctrl.step(0.0, x, c).u for s, ctrl in ctrls.items()}
         np.testing.assert_allclose(u["active_set"], u["closed_form"], atol=1e-10)
         np.testing.assert_allclose(u["CLARABEL"], u["closed_form"], atol=1e-6)
+        np.testing.assert_allclose(u["problem"], u["closed_form"], atol=1e-6)
         ul = {s: ctrl.step(0.0, x, c) for s, ctrl in long.items()}
         np.testing.assert_allclose(ul["auto"].u_pred, ul["CLARABEL"].u_pred, atol=1e-6)
 

@@ -56,14 +56,20 @@ def run_all(out_root: Path) -> pd.DataFrame:
 
 def interleaved(scenario: str, n_steps: int) -> dict[str, float]:
     """Per-step time of the switched backend (closed form) against the same condensed QP
-    through CVXPY (Clarabel, OSQP), all called on the same state, alternating the order."""
+    through CVXPY: Clarabel on the compiled data (``solve_via=direct``, the default), Clarabel
+    through ``Problem.solve`` and OSQP (through ``Problem.solve``), all called on the same
+    state, alternating the order."""
     cfg = compose_cfg(overrides(scenario, "switched", 0.02))
     run = build_run(cfg)
     plant, scen, fast = run.plant, run.scenario, run.controller
     # the same controller but the QP solved through CVXPY (its own copy of the plant)
-    others = {s: build_run(compose_cfg(overrides(scenario, "switched", 0.02,
-                                                 f"controller.solver={s}"))).controller
-              for s in ("CLARABEL", "OSQP")}
+    variants = {
+        "CLARABEL_direct": ["controller.solver=CLARABEL", "controller.solve_via=direct"],
+        "CLARABEL_problem": ["controller.solver=CLARABEL", "controller.solve_via=problem"],
+        "OSQP": ["controller.solver=OSQP"],
+    }
+    others = {name: build_run(compose_cfg(overrides(scenario, "switched", 0.02, *extra)))
+              .controller for name, extra in variants.items()}
     ctrls = {"closed_form": fast, **others}
     times: dict[str, list[float]] = {name: [] for name in ctrls}
     diff = {name: 0.0 for name in others}

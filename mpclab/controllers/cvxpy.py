@@ -10,7 +10,6 @@ persistent Clarabel solver (:mod:`mpclab.controllers.cvxpy_direct`), skipping
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -27,7 +26,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
-from mpclab.controllers.cvxpy_direct import DirectClarabel
+from mpclab.controllers.cvxpy_direct import SolveVia, direct_solver
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -37,15 +36,6 @@ from mpclab.registry import component
 class CvxpySolver(StrEnum):
     CLARABEL = "CLARABEL"
     OSQP = "OSQP"
-
-
-class SolveVia(StrEnum):
-    #: ``direct`` for Clarabel, ``problem`` for other solvers
-    auto = "auto"
-    #: the compiled data straight into a persistent Clarabel solver (Clarabel only)
-    direct = "direct"
-    #: ``Problem.solve`` every step
-    problem = "problem"
 
 
 class Linearization(StrEnum):
@@ -122,27 +112,10 @@ class CvxpyMPC(Controller):
         self.objective = objective
         objective.bind(plant, "cvxpy")
         self._build(dict(terminal_constraint or {}))
-        self.direct = self._direct(SolveVia(solve_via))
+        self.direct = direct_solver(
+            self.problem, [self.X, self.U], self.solver, self.solver_options, solve_via
+        )
         self._cold = True  # the next solve starts cold (no warm start from another run)
-
-    def _direct(self, via: SolveVia) -> DirectClarabel | None:
-        clarabel = self.solver == CvxpySolver.CLARABEL
-        if via is SolveVia.problem or (via is SolveVia.auto and not clarabel):
-            return None
-        if not clarabel:
-            raise ConfigError(
-                f"controller.solve_via=direct needs solver CLARABEL, not {self.solver}; "
-                "use solve_via=problem (or auto) for other solvers"
-            )
-        try:
-            return DirectClarabel(self.problem, [self.X, self.U], self.solver_options)
-        except ConfigError:
-            raise
-        except ValueError as exc:
-            if via is SolveVia.direct:
-                raise ConfigError(f"controller.solve_via=direct is not possible: {exc}") from exc
-            warnings.warn(f"solving through Problem.solve: {exc}", stacklevel=2)
-            return None
 
     def _build(self, terminal: dict[str, float]) -> None:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon

@@ -15,7 +15,9 @@ parameter values, so a change inside CVXPY is caught there and not in a solution
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
+from enum import StrEnum
 from typing import Any
 
 import clarabel
@@ -38,6 +40,51 @@ _STATUS = {
     "MaxIterations": cp.USER_LIMIT,
     "MaxTime": cp.USER_LIMIT,
 }
+
+
+class SolveVia(StrEnum):
+    """How a CVXPY-built problem is solved each step."""
+
+    #: ``direct`` for Clarabel, ``problem`` for other solvers
+    auto = "auto"
+    #: the compiled data straight into a persistent Clarabel solver (Clarabel only)
+    direct = "direct"
+    #: ``Problem.solve`` every step
+    problem = "problem"
+
+
+def direct_solver(
+    problem: cp.Problem,
+    variables: Sequence[cp.Variable],
+    solver: str,
+    options: Mapping[str, Any] | None,
+    via: SolveVia | str,
+    key: str = "controller.solve_via",
+) -> DirectClarabel | None:
+    """The :class:`DirectClarabel` for ``problem``, or None where ``Problem.solve`` is used.
+
+    ``auto`` takes the direct path for Clarabel and falls back to ``Problem.solve`` (with a
+    warning) if the compiled data cannot be used; ``direct`` insists (a ConfigError if it
+    cannot); ``problem`` never takes it.
+    """
+    via = SolveVia(via)
+    clarabel = str(solver) == cp.CLARABEL
+    if via is SolveVia.problem or (via is SolveVia.auto and not clarabel):
+        return None
+    if not clarabel:
+        raise ConfigError(
+            f"{key}=direct needs solver CLARABEL, not {solver}; use {key}=problem (or auto) "
+            "for other solvers"
+        )
+    try:
+        return DirectClarabel(problem, variables, options)
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        if via is SolveVia.direct:
+            raise ConfigError(f"{key}=direct is not possible: {exc}") from exc
+        warnings.warn(f"solving through Problem.solve: {exc}", stacklevel=3)
+        return None
 
 
 class DirectClarabel:

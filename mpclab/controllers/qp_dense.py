@@ -26,6 +26,8 @@ import cvxpy as cp
 import numpy as np
 import numpy.typing as npt
 
+from mpclab.controllers.cvxpy_direct import SolveVia, direct_solver
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -220,10 +222,18 @@ class CvxpyBoxQP:
         A CVXPY solver name (``CLARABEL``, ``OSQP``).
     options
         Keyword options for the solver.
+    solve_via
+        ``auto`` (Clarabel on the compiled data, others through ``Problem.solve``),
+        ``direct`` or ``problem``; see :mod:`mpclab.controllers.cvxpy_direct`.
     """
 
     def __init__(
-        self, lb: FloatArray, ub: FloatArray, solver: str, options: dict | None = None
+        self,
+        lb: FloatArray,
+        ub: FloatArray,
+        solver: str,
+        options: dict | None = None,
+        solve_via: SolveVia | str = SolveVia.auto,
     ) -> None:
         n = lb.size
         self.z = cp.Variable(n, name="z")
@@ -241,11 +251,24 @@ class CvxpyBoxQP:
             raise RuntimeError("CvxpyBoxQP is not DPP")
         self.solver = solver
         self.options = dict(options or {})
+        for param in (self.L, self.g):  # values for the direct path's check of its data
+            param.value = np.eye(n) if param is self.L else np.zeros(n)
+        self.direct = direct_solver(self.problem, [self.z], solver, self.options, solve_via)
+
+    def reset(self) -> None:
+        """Start the next run as a fresh solver would."""
+        if self.direct is not None:
+            self.direct.reset()
 
     def solve(self, H: FloatArray, g: FloatArray) -> tuple[FloatArray | None, str]:
         """``(z, status)``; ``z`` is None unless the solver reports optimal."""
         self.L.value = np.linalg.cholesky(H).T
         self.g.value = g
+        if self.direct is not None:
+            status, values, _ = self.direct.solve()
+            if status != cp.OPTIMAL or values is None:
+                return None, status
+            return np.asarray(values[0], dtype=float), "optimal"
         try:
             self.problem.solve(solver=self.solver, **self.options)
         except cp.error.SolverError:

@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext
+from mpclab.controllers.cvxpy_direct import SolveVia
 from mpclab.controllers.qp_dense import (
     CvxpyBoxQP,
     TrackingQP,
@@ -82,6 +83,7 @@ class ScheduledConf:
     hysteresis: dict[str, float] = field(default_factory=dict)
     solver: QPSolver = QPSolver.auto
     solver_options: dict[str, Any] = field(default_factory=dict)
+    solve_via: SolveVia = SolveVia.auto
 
 
 @component("controller", "scheduled", ScheduledConf)
@@ -110,6 +112,9 @@ class ScheduledMPC(Controller):
         ``closed_form``, ``active_set``, or ``CLARABEL`` / ``OSQP`` through CVXPY.
     solver_options
         Keyword options for a CVXPY solver.
+    solve_via
+        For CLARABEL: ``auto``/``direct`` (the compiled data straight into a persistent
+        Clarabel solver) or ``problem`` (``Problem.solve`` every step).
     """
 
     log_columns = ("op",)
@@ -127,6 +132,7 @@ class ScheduledMPC(Controller):
         hysteresis: Mapping[str, float] | None = None,
         solver: QPSolver | str = QPSolver.auto,
         solver_options: Mapping[str, Any] | None = None,
+        solve_via: SolveVia | str = SolveVia.auto,
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.mode = _enum(ScheduleMode, mode, "controller.mode")
@@ -169,7 +175,8 @@ class ScheduledMPC(Controller):
             self.op_states.append(x)
         self._precompute()
         self._cvx = (
-            CvxpyBoxQP(self.lb, self.ub, self.solver.value, dict(solver_options or {}))
+            CvxpyBoxQP(self.lb, self.ub, self.solver.value, dict(solver_options or {}),
+                       solve_via)
             if self.solver in (QPSolver.CLARABEL, QPSolver.OSQP) else None
         )
         self._active: int | None = None
@@ -221,6 +228,8 @@ class ScheduledMPC(Controller):
     def reset(self, x0: FloatArray) -> None:
         super().reset(x0)
         self._active = None
+        if self._cvx is not None:
+            self._cvx.reset()
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         ref = ctx.target.ravel()
