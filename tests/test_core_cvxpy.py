@@ -135,6 +135,22 @@ def test_direct_path_needs_clarabel_and_known_settings() -> None:
     assert ctrl.direct is None
 
 
+def test_direct_path_that_cannot_be_built_falls_back_or_refuses(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from mpclab.controllers import cvxpy_direct
+
+    def unusable(self, *args, **kwargs):
+        raise ValueError("the compiled data disagree with CVXPY's: {'A': 1.0}")
+
+    monkeypatch.setattr(cvxpy_direct.DirectClarabel, "__init__", unusable)
+    with pytest.warns(UserWarning, match="solving through Problem.solve: the compiled data"):
+        _, ctrl = make()  # auto: warn and take Problem.solve
+    assert ctrl.direct is None and ctrl.step(0.0, X0, ctx()).ok
+    with pytest.raises(ConfigError, match="solve_via=direct is not possible: the compiled"):
+        make(solve_via="direct")
+
+
 @pytest.mark.parametrize("via", ["direct", "problem"])
 def test_infeasible_qp_falls_back_with_its_status(via: str) -> None:
     """A real infeasible QP: at 100 m/s, |a| <= 10 cannot stop the car within 1 s."""
