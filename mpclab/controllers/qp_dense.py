@@ -251,8 +251,7 @@ class CvxpyBoxQP:
             raise RuntimeError("CvxpyBoxQP is not DPP")
         self.solver = solver
         self.options = dict(options or {})
-        for param in (self.L, self.g):  # values for the direct path's check of its data
-            param.value = np.eye(n) if param is self.L else np.zeros(n)
+        self.L.value, self.g.value = np.eye(n), np.zeros(n)  # the direct path needs values
         self.direct = direct_solver(self.problem, [self.z], solver, self.options, solve_via)
 
     def reset(self) -> None:
