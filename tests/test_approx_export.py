@@ -13,7 +13,7 @@ import pytest
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.neural_network import MLPRegressor
 
-from mpclab.approx.export_c import to_c
+from mpclab.approx.export_c import time_compiled, to_c
 from mpclab.approx.mlp import MLP
 
 RNG = np.random.default_rng(3)
@@ -95,3 +95,19 @@ def test_exported_c_equals_numpy(tmp_path: Path, hidden, activation) -> None:
         fn(z.ctypes.data_as(dbl), out.ctypes.data_as(dbl))
         np.testing.assert_allclose(out, mlp.forward(z), rtol=0, atol=1e-6)
         np.testing.assert_allclose(out, mlp.forward(z), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None,
+                    reason="no C compiler")
+def test_timing_the_compiled_net_checks_its_outputs(monkeypatch: pytest.MonkeyPatch) -> None:
+    model, X = fitted()
+    mlp = MLP.from_sklearn(model, X.mean(axis=0), X.std(axis=0), [10.0, 3.0], [0.5, -1.0])
+    rows = X[:7]
+    t = time_compiled(mlp, rows, reps=3)
+    assert t.shape == (21,) and np.all(t > 0) and np.all(t < 1.0)
+    with pytest.raises(ValueError, match="rows have 25 features, the net takes 26"):
+        time_compiled(mlp, rows[:, 1:], reps=1)
+    # the check is real: a NumPy side that disagrees with the C is caught
+    monkeypatch.setattr(MLP, "forward", lambda self, z: np.zeros((len(z), 2)))
+    with pytest.raises(AssertionError, match="the compiled net and NumPy differ"):
+        time_compiled(mlp, rows, reps=1)

@@ -43,3 +43,29 @@ def test_batch_equals_rows() -> None:
             np.testing.assert_array_equal(Z[i], features(kind, P[i], [0.4, 0.4, 0.0], D[i]))
     with pytest.raises(ValueError, match="3 rows for 7 poses"):
         features("study", P, [0, 0, 0], D[:3])
+
+
+def test_visited_features_equal_what_the_loop_sensed(tmp_path) -> None:
+    """Features rebuilt from logged states (the evaluation's compiled timing) equal the
+    features of the readings the closed loop itself recorded (the dataset recorder)."""
+    import pandas as pd
+
+    from mpclab.approx.evaluate import visited_features
+    from mpclab.approx.mlp import MLP
+    from mpclab.experiment import build_run, compose
+    from mpclab.sim import simulate
+
+    cfg = compose(["+experiment=zumo_nn_data", "recorder=dataset", "seed=100003",
+                   "scenario.t_max=1.0", "figures.enabled=false"])
+    run = build_run(cfg, tmp_path)
+    res = simulate(run)
+    rows = pd.read_parquet(tmp_path / "dataset.parquet")
+    from pathlib import Path
+
+    mlp = MLP.load(Path(__file__).resolve().parents[1] / "experiments/zumo_nn/weights.npz")
+    steps = res.steps.dropna(subset=["solve_time_s"])
+    got = visited_features(mlp, run, steps[list(run.plant.states)])
+    ranges = rows[[c for c in rows.columns if c.startswith("d") and c[1:].isdigit()]]
+    want = features("study", rows[["x", "y", "theta"]], rows[["x0", "y0", "theta0"]], ranges)
+    assert len(got) == len(rows) > 0
+    np.testing.assert_array_equal(got, want)

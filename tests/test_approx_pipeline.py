@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -34,6 +35,9 @@ def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> No
     ev = json.loads((pub / "evaluation.json").read_text())
     assert [r["controller"] for r in ev["held_out"]] == ["MPC expert", "NN"]
     assert all(r["runs"] == 3 for r in ev["held_out"])
+    if shutil.which("cc") or shutil.which("gcc"):  # the exported net, compiled and timed
+        assert ev["compiled"]["states"] > 0 and ev["compiled"]["speedup_median"] > 1
+        assert "compiled net" in (pub / "evaluation.md").read_text()
     assert {r["layout"] for r in ev["layouts"]} == {"zumo_wall"}
     assert (pub / "paths.png").stat().st_size > 10_000
 

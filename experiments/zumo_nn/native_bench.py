@@ -18,18 +18,15 @@ over each.
 from __future__ import annotations
 
 import argparse
-import shutil
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from mpclab.approx.export_c import to_c
-from mpclab.approx.features import features
+from mpclab.approx.evaluate import visited_features
+from mpclab.approx.export_c import c_compiler, time_compiled
 from mpclab.approx.mlp import MLP
 from mpclab.controllers.base import ControlStep
 from mpclab.experiment import build_run, compose
@@ -37,39 +34,6 @@ from mpclab.sim import simulate
 
 HERE = Path(__file__).resolve().parent
 FIRST_HELD_OUT_SEED = 100_000
-
-HARNESS = r"""
-#define _POSIX_C_SOURCE 199309L
-#include <stdio.h>
-#include <stdlib.h>
-#include <time.h>
-
-void NAME(const double *in, double *out);
-
-/* usage: bench ROWS.bin N_ROWS N_IN N_OUT REPS TIMES.bin OUT.bin
- * Times every call on its own (clock_gettime around it, so the clock's ~20 ns is included). */
-int main(int argc, char **argv)
-{
-    if (argc != 8) return 2;
-    long n = atol(argv[2]), n_in = atol(argv[3]), n_out = atol(argv[4]), reps = atol(argv[5]);
-    double *rows = malloc(sizeof(double) * n * n_in), *out = malloc(sizeof(double) * n * n_out);
-    double *times = malloc(sizeof(double) * n * reps);
-    FILE *f = fopen(argv[1], "rb");
-    if (!f || fread(rows, sizeof(double), n * n_in, f) != (size_t)(n * n_in)) return 3;
-    fclose(f);
-    struct timespec a, b;
-    for (long r = 0; r < reps; ++r)
-        for (long i = 0; i < n; ++i) {
-            clock_gettime(CLOCK_MONOTONIC, &a);
-            NAME(rows + i * n_in, out + i * n_out);
-            clock_gettime(CLOCK_MONOTONIC, &b);
-            times[r * n + i] = (b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec);
-        }
-    f = fopen(argv[6], "wb"); fwrite(times, sizeof(double), n * reps, f); fclose(f);
-    f = fopen(argv[7], "wb"); fwrite(out, sizeof(double), n * n_out, f); fclose(f);
-    return 0;
-}
-"""
 
 FLAGS = {"C, cc -O2": ["-O2"], "C, cc -O3 -march=native": ["-O3", "-march=native"]}
 
@@ -109,7 +73,6 @@ def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.n
                                           "NN, NumPy (in the loop)": [],
                                           "constant input (in the loop)": []}
     mlp = MLP.load(weights)
-    kind = mlp.meta.get("features", "study")
     rows = []
     for i in range(starts):
         seed = FIRST_HELD_OUT_SEED + i
@@ -121,12 +84,7 @@ def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.n
         times["MPC expert, solver call only"].append(np.array(solver_calls.times))
         times["MPC expert (in the loop)"].append(res.steps["solve_time_s"].dropna().to_numpy())
         steps = res.steps.dropna(subset=["solve_time_s"])
-        plant, scen = expert.plant, expert.scenario
-        ip = [plant.state_index(s) for s in (*plant.position, plant.heading)]
-        X = steps[list(plant.states)].to_numpy()
-        ranges = np.array([scen.sense(x)[1] for x in X])
-        goal = np.tile(scen.goal[ip], (len(X), 1))
-        rows.append(features(kind, X[:, ip], goal, ranges, mlp.meta.get("min_range", 0.05)))
+        rows.append(visited_features(mlp, expert, steps[list(expert.plant.states)]))
         net = build_run(compose(["+experiment=zumo_nn", f"controller.weights={weights}",
                                  *common]))
         res = simulate(net)
@@ -140,28 +98,9 @@ def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.n
     return {k: np.concatenate(v) for k, v in times.items()}, np.concatenate(rows)
 
 
-def compiled(mlp: MLP, rows: np.ndarray, reps: int, cc: str) -> dict[str, np.ndarray]:
+def compiled(mlp: MLP, rows: np.ndarray, reps: int) -> dict[str, np.ndarray]:
     """Per-call times [s] of the exported C net, per set of compiler flags."""
-    out: dict[str, np.ndarray] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
-        (d / "nn.c").write_text(to_c(mlp, "mpclab_nn"))
-        (d / "bench.c").write_text(HARNESS.replace("NAME", "mpclab_nn"))
-        rows = np.ascontiguousarray(rows, dtype=np.float64)
-        rows.tofile(d / "rows.bin")
-        for name, flags in FLAGS.items():
-            exe = d / "bench"
-            subprocess.run([cc, "-std=c99", *flags, str(d / "nn.c"), str(d / "bench.c"),
-                            "-o", str(exe), "-lm"], check=True)
-            subprocess.run([str(exe), str(d / "rows.bin"), str(len(rows)), str(mlp.n_in),
-                            str(mlp.n_out), str(reps), str(d / "t.bin"), str(d / "u.bin")],
-                           check=True)
-            u = np.fromfile(d / "u.bin").reshape(len(rows), mlp.n_out)
-            gap = float(np.abs(u - mlp.forward(rows)).max())
-            if gap > 1e-9:
-                raise AssertionError(f"{name}: C and NumPy differ by {gap:g}")
-            out[name] = np.fromfile(d / "t.bin") * 1e-9
-    return out
+    return {name: time_compiled(mlp, rows, reps, flags) for name, flags in FLAGS.items()}
 
 
 def main(argv: list[str] | None = None) -> pd.DataFrame:
@@ -170,11 +109,10 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     ap.add_argument("--reps", type=int, default=200, help="C calls per visited state")
     ap.add_argument("--weights", type=Path, default=HERE / "weights.npz")
     args = ap.parse_args(argv)
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
+    if c_compiler() is None:
         ap.error("no C compiler (cc or gcc) on PATH")
     times, rows = closed_loop(args.starts, args.weights.resolve())
-    times.update(compiled(MLP.load(args.weights), rows, args.reps, cc))
+    times.update(compiled(MLP.load(args.weights), rows, args.reps))
     mpc = np.median(times["MPC expert (in the loop)"])
     mpc_solver = np.median(times["MPC expert, solver call only"])
     table = pd.DataFrame([

@@ -18,6 +18,7 @@ from scipy.stats import binomtest
 
 from mpclab import record
 from mpclab.approx.dataset import run_dirs
+from mpclab.approx.features import features
 from mpclab.experiment import build_run
 
 
@@ -44,6 +45,18 @@ def outcomes(sweep: Path) -> pd.DataFrame:
             "dir": str(d),
         })
     return pd.DataFrame(rows).sort_values("seed").reset_index(drop=True)
+
+
+def visited_features(mlp: Any, run: Any, states: np.ndarray) -> np.ndarray:
+    """The net's input rows at ``states`` ``(N, nx)`` of ``run``'s plant, each sensed in
+    ``run``'s scenario (its sensor and obstacles) with its goal."""
+    plant, scen = run.plant, run.scenario
+    ip = [plant.state_index(s) for s in (*plant.position, plant.heading)]
+    states = np.atleast_2d(np.asarray(states, dtype=float))
+    ranges = np.array([scen.sense(x)[1] for x in states])
+    goal = np.tile(np.asarray(scen.goal, dtype=float)[ip], (len(states), 1))
+    return features(mlp.meta.get("features", "study"), states[:, ip], goal, ranges,
+                    mlp.meta.get("min_range", 0.05))
 
 
 def step_times(dirs: list[str]) -> np.ndarray:

@@ -29,11 +29,13 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
 
+from mpclab import record
 from mpclab.approx import dataset, evaluate
-from mpclab.approx.export_c import to_c
+from mpclab.approx.export_c import c_compiler, time_compiled, to_c
 from mpclab.approx.mlp import MLP
 from mpclab.approx.train import TrainConf, train
 from mpclab.experiment import build_run, compose
@@ -66,6 +68,7 @@ class EvalConf:
     layouts: list[str] = field(default_factory=lambda: ["zumo_wall", "zumo_dead_end"])
     layout_starts: int = 50              # random starts per unseen layout
     figure_pairs: int = 6
+    compiled_reps: int = 100             # C calls per visited state when timing the export
 
 
 @dataclass
@@ -202,6 +205,33 @@ def _merged(sweep_dir: Path, out: Path) -> Path:
     return out
 
 
+def time_export(
+    conf: PipelineConf, weights: Path, mpc: pd.DataFrame, cmp: evaluate.Comparison
+) -> dict[str, Any] | None:
+    """The exported C net timed on every state the expert visited in ``mpc``'s runs, against
+    the expert's in-loop median; None without a C compiler or with ``compiled_reps: 0``."""
+    if conf.eval.compiled_reps <= 0:
+        return None
+    if c_compiler() is None:
+        print("no C compiler: the compiled net is not timed", file=sys.stderr)
+        return None
+    mlp = MLP.load(weights)
+    rows = []
+    for d, seed in zip(mpc["dir"], mpc["seed"], strict=True):
+        run = build_run(expert_cfg(conf, [f"seed={seed}"]))
+        steps = record.read_steps(Path(d)).dropna(subset=["solve_time_s"])
+        if len(steps):
+            rows.append(evaluate.visited_features(mlp, run, steps[list(run.plant.states)]))
+    flags = ("-O2",)
+    t = time_compiled(mlp, np.concatenate(rows), conf.eval.compiled_reps, flags)
+    table = cmp.table.set_index("controller")
+    mpc_median = 1e-3 * float(table.loc["MPC expert", "step_median_ms"])
+    return {"flags": " ".join(["-std=c99", *flags]), "states": sum(len(r) for r in rows),
+            "step_median_us": 1e6 * float(np.median(t)),
+            "step_p95_us": 1e6 * float(np.percentile(t, 95)),
+            "speedup_median": mpc_median / float(np.median(t))}
+
+
 def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
     ev, dcfg = conf.eval, conf.data
     seeds = range(ev.seed0, ev.seed0 + ev.starts)
@@ -214,6 +244,14 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
              cmp.table.to_markdown(index=False, floatfmt=".3g"), "",
              f"Per-step time, MPC median / NN median: **{cmp.speedup_median:.0f}x**", ""]
     summary = {"held_out": cmp.table.to_dict("records"), "speedup_median": cmp.speedup_median}
+    compiled = time_export(conf, weights, mpc, cmp)
+    if compiled is not None:
+        lines += [
+            f"Per-step time of the compiled net (the exported C, `cc {compiled['flags']}`, "
+            f"timed in C on the {compiled['states']} states the expert visited): median "
+            f"{compiled['step_median_us']:.2f} us, p95 {compiled['step_p95_us']:.2f} us; "
+            f"MPC median / compiled NN median: **{compiled['speedup_median']:.0f}x**", ""]
+        summary["compiled"] = compiled
     evaluate.plot_paths(cmp.pairs, expert_cfg(conf), pub / "paths.png", ev.figure_pairs)
     layout_rows = []
     for layout in ev.layouts:
