@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
-import cvxpy as cp
 import numpy as np
 
 from mpclab.controllers.base import (
@@ -28,9 +27,13 @@ from mpclab.controllers.base import (
 )
 from mpclab.controllers.cvxpy_direct import SolveVia, direct_solver
 from mpclab.errors import ConfigError
+from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
+
+cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
+
 
 
 class CvxpySolver(StrEnum):

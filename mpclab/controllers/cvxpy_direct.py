@@ -21,26 +21,29 @@ from collections.abc import Mapping, Sequence
 from enum import StrEnum
 from typing import Any
 
-import clarabel
-import cvxpy as cp
 import numpy as np
-import scipy.sparse as sp
-from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import dims_to_solver_cones
-from cvxpy.reductions.solvers.conic_solvers.conic_solver import ConicSolver
 
 from mpclab.errors import ConfigError
+from mpclab.lazy import lazy_import
 
-#: Clarabel's statuses in CVXPY's words (the strings ``Problem.status`` would show)
+cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
+sp = lazy_import("scipy.sparse")
+
+#: Clarabel's statuses in CVXPY's words (the strings ``Problem.status`` would show;
+#: ``cp.OPTIMAL == "optimal"`` and so on, written out so that importing this module does not
+#: import CVXPY)
 _STATUS = {
-    "Solved": cp.OPTIMAL,
-    "AlmostSolved": cp.OPTIMAL_INACCURATE,
-    "PrimalInfeasible": cp.INFEASIBLE,
-    "AlmostPrimalInfeasible": cp.INFEASIBLE_INACCURATE,
-    "DualInfeasible": cp.UNBOUNDED,
-    "AlmostDualInfeasible": cp.UNBOUNDED_INACCURATE,
-    "MaxIterations": cp.USER_LIMIT,
-    "MaxTime": cp.USER_LIMIT,
+    "Solved": "optimal",
+    "AlmostSolved": "optimal_inaccurate",
+    "PrimalInfeasible": "infeasible",
+    "AlmostPrimalInfeasible": "infeasible_inaccurate",
+    "DualInfeasible": "unbounded",
+    "AlmostDualInfeasible": "unbounded_inaccurate",
+    "MaxIterations": "user_limit",
+    "MaxTime": "user_limit",
 }
+_SOLVER_ERROR = "solver_error"
+_OK = frozenset({"optimal", "optimal_inaccurate"})
 
 
 class SolveVia(StrEnum):
@@ -69,7 +72,7 @@ def direct_solver(
     cannot); ``problem`` never takes it.
     """
     via = SolveVia(via)
-    clarabel = str(solver) == cp.CLARABEL
+    clarabel = str(solver) == "CLARABEL"
     if via is SolveVia.problem or (via is SolveVia.auto and not clarabel):
         return None
     if not clarabel:
@@ -117,6 +120,11 @@ class DirectClarabel:
         variables: Sequence[cp.Variable],
         options: Mapping[str, Any] | None = None,
     ) -> None:
+        import clarabel
+        from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import dims_to_solver_cones
+        from cvxpy.reductions.solvers.conic_solvers.conic_solver import ConicSolver
+
+        self._clarabel = clarabel
         data, _, _ = problem.get_problem_data(cp.CLARABEL)
         pp = data[cp.settings.PARAM_PROB]
         self.parameters = list(problem.parameters())
@@ -237,12 +245,14 @@ class DirectClarabel:
         """
         P, q, d, A, b = self.data()
         if self._solver is None:
-            self._solver = clarabel.DefaultSolver(P, q, A, b, self._cones, self._settings)
+            self._solver = self._clarabel.DefaultSolver(
+                P, q, A, b, self._cones, self._settings
+            )
         else:
             self._solver.update(P=P.data, q=q, A=A.data, b=b)
         sol = self._solver.solve()
-        status = _STATUS.get(str(sol.status), cp.SOLVER_ERROR)
-        if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        status = _STATUS.get(str(sol.status), _SOLVER_ERROR)
+        if status not in _OK:
             return status, None, float("nan")
         x = np.asarray(sol.x)
         values = [

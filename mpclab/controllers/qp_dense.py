@@ -22,11 +22,13 @@ reference). With box bounds on the inputs the QP is ``min 1/2 U' H U + g' U``,
 from __future__ import annotations
 
 import casadi as ca
-import cvxpy as cp
 import numpy as np
 import numpy.typing as npt
 
 from mpclab.controllers.cvxpy_direct import SolveVia, direct_solver
+from mpclab.lazy import lazy_import
+
+cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
 FloatArray = npt.NDArray[np.float64]
 

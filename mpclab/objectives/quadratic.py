@@ -11,11 +11,13 @@ from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
-import cvxpy as cp
 import numpy as np
 
 from mpclab.errors import ConfigError
+from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Term
+
+cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
 
 class QuadraticTracking(Term):
