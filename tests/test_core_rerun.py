@@ -15,6 +15,9 @@ CVXPY_VARIANTS = {
     "car_cvxpy-clarabel-direct": ["+experiment=car_cvxpy"],
     "car_cvxpy-clarabel-problem": ["+experiment=car_cvxpy", "controller.solve_via=problem"],
     "car_cvxpy-osqp": ["+experiment=car_cvxpy", "controller.solver=OSQP"],  # warm-started
+    "bicycle-clarabel-direct": ["+experiment=bicycle_scheduled", "controller.solver=CLARABEL"],
+    "bicycle-osqp": ["+experiment=bicycle_scheduled", "controller.solver=OSQP",
+                     "scenario.t_max=4.0"],
 }
 OTHERS = {
     p.stem: [f"+experiment={p.stem}"]

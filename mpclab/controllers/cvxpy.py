@@ -25,7 +25,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
-from mpclab.controllers.cvxpy_direct import SolveVia, direct_solver
+from mpclab.controllers.cvxpy_direct import CompiledQP, SolveVia
 from mpclab.errors import ConfigError
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective
@@ -115,10 +115,9 @@ class CvxpyMPC(Controller):
         self.objective = objective
         objective.bind(plant, "cvxpy")
         self._build(dict(terminal_constraint or {}))
-        self.direct = direct_solver(
-            self.problem, [self.X, self.U], self.solver, self.solver_options, solve_via
-        )
-        self._cold = True  # the next solve starts cold (no warm start from another run)
+        self.qp = CompiledQP(self.problem, [self.X, self.U], self.solver, self.solver_options,
+                             self.warm_start, solve_via)
+        self.direct = self.qp.direct  # None when solving through Problem.solve
 
     def _build(self, terminal: dict[str, float]) -> None:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
@@ -158,9 +157,7 @@ class CvxpyMPC(Controller):
         """Forget the previous plan and anything the solver keeps from the last run (its
         warm start, the persistent Clarabel solver), so a reused controller repeats a run."""
         super().reset(x0)
-        self._cold = True
-        if self.direct is not None:
-            self.direct.reset()
+        self.qp.reset()
 
     def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         prev = self.previous_plan
@@ -185,7 +182,7 @@ class CvxpyMPC(Controller):
                 [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
                 axis=1,
             )
-            status, values, cost, message = self._solve_qp()
+            status, values, cost, message = self.qp.solve()
             if status != cp.OPTIMAL or values is None:
                 return self._failed(status, x, message)
             Xv, Uv = values
@@ -193,21 +190,6 @@ class CvxpyMPC(Controller):
         return ControlStep(
             u=Uv[:, 0].copy(), x_pred=Xv.T.copy(), u_pred=Uv.T.copy(), status="optimal", cost=cost
         )
-
-    def _solve_qp(self) -> tuple[str, list[FloatArray] | None, float, str]:
-        """Solve at the parameters' current values: ``(status, [X, U] or None, objective,
-        error message)``."""
-        if self.direct is not None:
-            return (*self.direct.solve(), "")
-        warm, self._cold = self.warm_start and not self._cold, False
-        try:
-            self.problem.solve(solver=self.solver, warm_start=warm, **self.solver_options)
-        except cp.error.SolverError as exc:
-            return "solver_error", None, float("nan"), str(exc)
-        status = str(self.problem.status)
-        if self.U.value is None:
-            return status, None, float("nan"), ""
-        return status, [self.X.value, self.U.value], float(self.problem.value), ""
 
 
 def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint]:

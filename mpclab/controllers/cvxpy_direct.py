@@ -93,6 +93,64 @@ def direct_solver(
         return None
 
 
+class CompiledQP:
+    """A CVXPY problem built once, solved at its parameters' current values: on the direct
+    path (:class:`DirectClarabel`) where ``via`` allows, else through ``Problem.solve``
+    (warm-started, except for the first solve after :meth:`reset`, so every run starts as a
+    fresh one would).
+
+    Parameters
+    ----------
+    problem, variables
+        The DPP problem (its parameters with values) and the variables whose values
+        :meth:`solve` returns.
+    solver, options
+        A CVXPY solver name and its options.
+    warm_start
+        Warm-start ``Problem.solve`` within a run (the direct path has nothing to warm).
+    via, key
+        See :func:`direct_solver`.
+    """
+
+    def __init__(
+        self,
+        problem: cp.Problem,
+        variables: Sequence[cp.Variable],
+        solver: str,
+        options: Mapping[str, Any] | None = None,
+        warm_start: bool = True,
+        via: SolveVia | str = SolveVia.auto,
+        key: str = "controller.solve_via",
+    ) -> None:
+        self.problem, self.variables = problem, list(variables)
+        self.solver, self.options = str(solver), dict(options or {})
+        self.warm_start = bool(warm_start)
+        self.direct = direct_solver(problem, self.variables, self.solver, self.options, via, key)
+        self._cold = True
+
+    def reset(self) -> None:
+        """Start the next solve as a fresh solver would: no warm start from another run."""
+        self._cold = True
+        if self.direct is not None:
+            self.direct.reset()
+
+    def solve(self) -> tuple[str, list[np.ndarray] | None, float, str]:
+        """``(status, variable values or None, objective, error message)``; the status in
+        CVXPY's words (``"optimal"``, ``"infeasible"``, ``"solver_error"``, ...)."""
+        if self.direct is not None:
+            return (*self.direct.solve(), "")
+        warm, self._cold = self.warm_start and not self._cold, False
+        try:
+            self.problem.solve(solver=self.solver, warm_start=warm, **self.options)
+        except cp.error.SolverError as exc:
+            return _SOLVER_ERROR, None, float("nan"), str(exc)
+        status = str(self.problem.status)
+        values = [v.value for v in self.variables]
+        if any(v is None for v in values):
+            return status, None, float("nan"), ""
+        return status, values, float(self.problem.value), ""
+
+
 class DirectClarabel:
     """A compiled DPP problem solved by one persistent Clarabel solver.
 

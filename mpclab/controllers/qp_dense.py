@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.controllers.cvxpy_direct import SolveVia, direct_solver
+from mpclab.controllers.cvxpy_direct import CompiledQP, SolveVia
 from mpclab.lazy import lazy_import
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
@@ -251,30 +251,19 @@ class CvxpyBoxQP:
         self.problem = cp.Problem(cp.Minimize(cost), cons)
         if not self.problem.is_dpp():  # pragma: no cover - a construction bug, not input
             raise RuntimeError("CvxpyBoxQP is not DPP")
-        self.solver = solver
-        self.options = dict(options or {})
         self.L.value, self.g.value = np.eye(n), np.zeros(n)  # the direct path needs values
-        self.direct = direct_solver(self.problem, [self.z], solver, self.options, solve_via)
+        self.qp = CompiledQP(self.problem, [self.z], solver, options, via=solve_via)
+        self.direct = self.qp.direct  # None when solving through Problem.solve
 
     def reset(self) -> None:
         """Start the next run as a fresh solver would."""
-        if self.direct is not None:
-            self.direct.reset()
+        self.qp.reset()
 
     def solve(self, H: FloatArray, g: FloatArray) -> tuple[FloatArray | None, str]:
         """``(z, status)``; ``z`` is None unless the solver reports optimal."""
         self.L.value = np.linalg.cholesky(H).T
         self.g.value = g
-        if self.direct is not None:
-            status, values, _ = self.direct.solve()
-            if status != cp.OPTIMAL or values is None:
-                return None, status
-            return np.asarray(values[0], dtype=float), "optimal"
-        try:
-            self.problem.solve(solver=self.solver, **self.options)
-        except cp.error.SolverError:
-            return None, "solver_error"
-        status = str(self.problem.status)
-        if status != cp.OPTIMAL or self.z.value is None:
+        status, values, _, _ = self.qp.solve()
+        if status != cp.OPTIMAL or values is None:
             return None, status
-        return np.asarray(self.z.value, dtype=float), "optimal"
+        return np.asarray(values[0], dtype=float), "optimal"
