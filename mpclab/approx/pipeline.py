@@ -222,11 +222,14 @@ def time_export(
         steps = record.read_steps(Path(d)).dropna(subset=["solve_time_s"])
         if len(steps):
             rows.append(evaluate.visited_features(mlp, run, steps[list(run.plant.states)]))
+    if not rows:
+        return None
     flags = ("-O2",)
     t = time_compiled(mlp, np.concatenate(rows), conf.eval.compiled_reps, flags)
     table = cmp.table.set_index("controller")
     mpc_median = 1e-3 * float(table.loc["MPC expert", "step_median_ms"])
-    return {"flags": " ".join(["-std=c99", *flags]), "states": sum(len(r) for r in rows),
+    command = " ".join([Path(c_compiler()).name, "-std=c99", *flags])
+    return {"flags": command, "states": sum(len(r) for r in rows),
             "step_median_us": 1e6 * float(np.median(t)),
             "step_p95_us": 1e6 * float(np.percentile(t, 95)),
             "speedup_median": mpc_median / float(np.median(t))}
@@ -247,7 +250,7 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
     compiled = time_export(conf, weights, mpc, cmp)
     if compiled is not None:
         lines += [
-            f"Per-step time of the compiled net (the exported C, `cc {compiled['flags']}`, "
+            f"Per-step time of the compiled net (the exported C, `{compiled['flags']}`, "
             f"timed in C on the {compiled['states']} states the expert visited): median "
             f"{compiled['step_median_us']:.2f} us, p95 {compiled['step_p95_us']:.2f} us; "
             f"MPC median / compiled NN median: **{compiled['speedup_median']:.0f}x**", ""]

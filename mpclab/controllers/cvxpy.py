@@ -35,7 +35,6 @@ from mpclab.registry import component
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
 
-
 class CvxpySolver(StrEnum):
     CLARABEL = "CLARABEL"
     OSQP = "OSQP"
