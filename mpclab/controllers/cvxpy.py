@@ -25,7 +25,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
-from mpclab.controllers.cvxpy_direct import CompiledQP, SolveVia
+from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, SolveVia
 from mpclab.errors import ConfigError
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective
@@ -116,7 +116,6 @@ class CvxpyMPC(Controller):
         self._build(dict(terminal_constraint or {}))
         self.qp = CompiledQP(self.problem, [self.X, self.U], self.solver, self.solver_options,
                              self.warm_start, solve_via)
-        self.direct = self.qp.direct  # None when solving through Problem.solve
 
     def _build(self, terminal: dict[str, float]) -> None:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
@@ -151,6 +150,11 @@ class CvxpyMPC(Controller):
         for param in self.problem.parameters():
             param.value = np.zeros(param.shape)
         self.problem.get_problem_data(self.solver)
+
+    @property
+    def direct(self) -> DirectClarabel | None:
+        """The direct Clarabel path, or None when solving through ``Problem.solve``."""
+        return self.qp.direct
 
     def reset(self, x0: Any) -> None:
         """Forget the previous plan and anything the solver keeps from the last run (its

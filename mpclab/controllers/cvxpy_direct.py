@@ -251,20 +251,25 @@ class DirectClarabel:
             self._theta[col : col + size] = np.ravel(p.value, order="F")
         return self._theta
 
-    def data(self) -> tuple[sp.csc_array, np.ndarray, float, sp.csc_array, np.ndarray]:
-        """Clarabel's ``(P, q, d, A, b)`` (upper-triangular ``P``, ``A x + s = b``) for the
-        parameters' current values; ``d`` is the objective's constant."""
+    def _values(self) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+        """The nonzeros of ``P`` and ``A`` (in their fixed patterns), ``q``, ``d`` and ``b``
+        for the parameters' current values: all a solve needs, no matrices built."""
         theta = self._parameter_vector()
         qd = self._q_map @ theta
         vals = self._mapA @ theta
-        n = len(qd) - 1
-        A = sp.csc_array((-vals[: self._nA][self._A_perm], self._A_idx, self._A_ptr),
-                         (len(self._b), n))
         b = self._b.copy()
         b[self._b_rows] = vals[self._nA :]
         Pv = (self._mapP @ theta)[self._P_perm] if self._mapP is not None else np.zeros(0)
+        return Pv, qd[:-1], float(qd[-1]), -vals[: self._nA][self._A_perm], b
+
+    def data(self) -> tuple[sp.csc_array, np.ndarray, float, sp.csc_array, np.ndarray]:
+        """Clarabel's ``(P, q, d, A, b)`` (upper-triangular ``P``, ``A x + s = b``) for the
+        parameters' current values; ``d`` is the objective's constant."""
+        Pv, q, d, Av, b = self._values()
+        n = len(q)
+        A = sp.csc_array((Av, self._A_idx, self._A_ptr), (len(b), n))
         P = sp.csc_array((Pv, self._P_idx, self._P_ptr), (n, n))
-        return P, qd[:n], float(qd[n]), A, b
+        return P, q, d, A, b
 
     def _check(self, pp: Any) -> None:
         """Compare :meth:`data` with CVXPY's ``apply_parameters`` at random parameter values."""
@@ -301,13 +306,14 @@ class DirectClarabel:
 
         The status uses CVXPY's words; values are None unless a solution exists.
         """
-        P, q, d, A, b = self.data()
         if self._solver is None:
+            P, q, d, A, b = self.data()
             self._solver = self._clarabel.DefaultSolver(
                 P, q, A, b, self._cones, self._settings
             )
-        else:
-            self._solver.update(P=P.data, q=q, A=A.data, b=b)
+        else:  # the patterns are fixed: only the values change
+            Pv, q, d, Av, b = self._values()
+            self._solver.update(P=Pv, q=q, A=Av, b=b)
         sol = self._solver.solve()
         status = _STATUS.get(str(sol.status), _SOLVER_ERROR)
         if status not in _OK:

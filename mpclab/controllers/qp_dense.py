@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.controllers.cvxpy_direct import CompiledQP, SolveVia
+from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, SolveVia
 from mpclab.lazy import lazy_import
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
@@ -253,7 +253,11 @@ class CvxpyBoxQP:
             raise RuntimeError("CvxpyBoxQP is not DPP")
         self.L.value, self.g.value = np.eye(n), np.zeros(n)  # the direct path needs values
         self.qp = CompiledQP(self.problem, [self.z], solver, options, via=solve_via)
-        self.direct = self.qp.direct  # None when solving through Problem.solve
+
+    @property
+    def direct(self) -> DirectClarabel | None:
+        """The direct Clarabel path, or None when solving through ``Problem.solve``."""
+        return self.qp.direct
 
     def reset(self) -> None:
         """Start the next run as a fresh solver would."""
