@@ -40,8 +40,13 @@ def main(cfg: DictConfig) -> dict:
         s = run_job(cfg, out_dir, list(hc.overrides.task), dict(hc.runtime.choices))
     else:
         s = run_experiment(cfg, out_dir).summary
-    keys = ("status", "arrival_time_s", "n_steps", "compute_median_ms", "rtf", "solver_failures")
-    log.info("%s", json.dumps({k: s.get(k) for k in keys}))
+    keys = ("status", "arrival_time_s", "n_steps", "compute_median_ms", "rtf", "solver_failures",
+            "converged_fraction")
+    line = {k: s.get(k) for k in keys}
+    # every solve that did not converge, by what it did (truncated, infeasible, failed, ...)
+    line |= {k: n for k, n in s.items() if k.startswith("solves_") and k != "solves_converged"
+             and n}
+    log.info("%s", json.dumps(line))
     log.info("run record: %s", out_dir)
     return s
 

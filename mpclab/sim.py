@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.controllers.base import OK_STATUSES, Controller, ControlStep, StepContext
+from mpclab.controllers.base import USABLE, Controller, ControlStep, SolveStatus, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.supervisors.base import NoSupervisor, Supervisor
@@ -125,7 +125,7 @@ class _StepLog:
         self.t: list[float] = []
         self.xs: list[np.ndarray] = []
         self.us: list[np.ndarray] = []
-        self.meta: list[tuple[float, str, bool, str, float, float]] = []
+        self.meta: list[tuple[float, str, bool, str, float, float, str, float]] = []
         self.x_pred: list[np.ndarray] = []
         self.u_pred: list[np.ndarray] = []
 
@@ -136,7 +136,9 @@ class _StepLog:
         self.t.append(t)
         self.xs.append(x.copy())
         self.us.append(np.asarray(cs.u, dtype=float).copy())
-        self.meta.append((solve_time, cs.status, cs.fallback, mode, cs.cost, clearance))
+        iters = np.nan if cs.iterations is None else float(cs.iterations)
+        self.meta.append((solve_time, str(cs.status), cs.fallback, mode, cs.cost, clearance,
+                          cs.solver_status, iters))
         self.x_pred.append(np.asarray(cs.x_pred, dtype=float))
         self.u_pred.append(np.asarray(cs.u_pred, dtype=float))
         for key, values in self.extra.items():
@@ -146,7 +148,7 @@ class _StepLog:
         self.t.append(t)
         self.xs.append(x.copy())
         self.us.append(np.full(self.plant.nu, np.nan))
-        self.meta.append((np.nan, "final", False, "", np.nan, clearance))
+        self.meta.append((np.nan, "final", False, "", np.nan, clearance, "", np.nan))
         for values in self.extra.values():
             values.append(None)
 
@@ -159,13 +161,15 @@ class _StepLog:
             steps[label] = xs[:, i]
         for j, label in enumerate(p.inputs):
             steps[label] = us[:, j]
-        solve, status, fallback, mode, cost, clearance = zip(*self.meta, strict=True)
+        solve, status, fallback, mode, cost, clearance, raw, iters = zip(*self.meta, strict=True)
         steps["solve_time_s"] = np.asarray(solve, dtype=float)
         steps["status"] = pd.Series(status, dtype="string")
         steps["fallback"] = np.asarray(fallback, dtype=bool)
         steps["mode"] = pd.Series(mode, dtype="string")
         steps["cost"] = np.asarray(cost, dtype=float)
         steps["clearance_m"] = np.asarray(clearance, dtype=float)
+        steps["solver_status"] = pd.Series(raw, dtype="string")
+        steps["iterations"] = np.asarray(iters, dtype=float)  # NaN: the solver has no count
         for key, values in self.extra.items():
             steps[key] = pd.Series(values)
         return steps, self._horizons()
@@ -189,6 +193,12 @@ class _StepLog:
         return hz
 
 
+def solve_counts(status: pd.Series) -> dict[SolveStatus, int]:
+    """How many controller calls ended in each :class:`SolveStatus` (every status, zeros too)."""
+    seen = status.value_counts()
+    return {st: int(seen.get(str(st), 0)) for st in SolveStatus}
+
+
 def _summary(
     steps: pd.DataFrame, status: str, error: str | None, t_end: float, scen: Scenario
 ) -> dict[str, Any]:
@@ -197,7 +207,9 @@ def _summary(
     total = float(solve.sum())
     ms = solve * 1e3
     clearance = steps["clearance_m"].to_numpy()
-    failures = int((~calls["status"].isin(list(OK_STATUSES))).sum())
+    counts = solve_counts(calls["status"])
+    failures = int(sum(n for st, n in counts.items() if st not in USABLE))
+    iters = calls["iterations"].dropna().to_numpy()
     return {
         "status": status,
         "arrived": status == "arrived",
@@ -211,6 +223,10 @@ def _summary(
         "rtf": total / t_end if t_end > 0 else None,
         "min_clearance_m": float(np.nanmin(clearance)) if np.isfinite(clearance).any() else None,
         "solver_failures": failures,
+        "converged_fraction": counts[SolveStatus.converged] / len(calls) if len(calls) else None,
+        **{f"solves_{st}": n for st, n in counts.items()},
+        "iterations_median": float(np.median(iters)) if len(iters) else None,
+        "iterations_max": int(iters.max()) if len(iters) else None,
         "final_state": dict(zip(scen.plant.states, steps.iloc[-1][list(scen.plant.states)]
                                 .astype(float), strict=True)),
         "error": error,

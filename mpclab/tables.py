@@ -25,6 +25,7 @@ import pandas as pd
 import yaml
 
 from mpclab import record
+from mpclab.controllers.base import SolveStatus
 
 #: status of a run folder whose summary.json is missing or unreadable
 INCOMPLETE = "incomplete"
@@ -32,14 +33,15 @@ INCOMPLETE = "incomplete"
 LEAD = (
     "experiment", "plant", "controller", "backend", "scenario", "seed", "status", "arrived",
     "arrival_time_s", "n_steps", "sim_time_s", "compute_total_s", "compute_median_ms",
-    "compute_p95_ms", "compute_max_ms", "rtf", "min_clearance_m", "solver_failures", "error",
+    "compute_p95_ms", "compute_max_ms", "rtf", "min_clearance_m", "solver_failures",
+    "converged_fraction", "error",
 )
 #: summary fields that are not table columns
 DROPPED = ("versions", "overrides", "skipped")
 #: columns of the Markdown runs table, after the parameters
 SHOWN = (
     "backend", "scenario", "status", "arrival_time_s", "compute_median_ms", "compute_p95_ms",
-    "rtf", "error",
+    "rtf", "converged_fraction", "error",
 )
 FILES = {
     "parquet": "summary.parquet", "csv": "summary.csv", "markdown": "summary.md",
@@ -240,11 +242,26 @@ def group_table(df: pd.DataFrame) -> pd.DataFrame:
             if arrived.any() else None,
             "step_median_ms": float(np.median(ms)) if ms.size else None,
             "step_p95_ms": float(np.percentile(ms, 95)) if ms.size else None,
+            **_solve_shares(g),
         })
     return pd.DataFrame(rows, columns=[
         "backend", "scenario", "runs", "arrived", "errors", "success_rate",
-        "arrival_median_s", "step_median_ms", "step_p95_ms",
+        "arrival_median_s", "step_median_ms", "step_p95_ms", "converged_fraction",
+        *SOLVE_COUNTS,
     ])
+
+
+#: per-status solve counts of summary.json, summed over a group
+SOLVE_COUNTS = tuple(f"solves_{st}" for st in SolveStatus)
+
+
+def _solve_shares(g: pd.DataFrame) -> dict[str, Any]:
+    """A group's solves by status (summed) and the converged share of all of them."""
+    counts = {c: int(pd.to_numeric(g[c], errors="coerce").fillna(0).sum()) if c in g else 0
+              for c in SOLVE_COUNTS}
+    total = sum(counts.values())
+    return {"converged_fraction": counts["solves_converged"] / total if total else None,
+            **counts}
 
 
 def markdown(df: pd.DataFrame, groups: pd.DataFrame | None = None) -> str:

@@ -49,7 +49,7 @@ def test_wrong_sensor_size_is_a_clear_error(tmp_path: Path) -> None:
     ctrl = NNController(plant, str(random_mlp(FeatureSet.study).save(tmp_path / "w.npz")))
     res = ctrl.step(0.0, np.zeros(3), StepContext(goal=np.zeros(3), target=np.zeros((1, 3)),
                                                   ranges=np.full(12, np.inf)))
-    assert res.fallback and res.status == "exception:ConfigError"
+    assert res.fallback and res.status == "exception" and res.solver_status == "ConfigError"
     assert "trained on 20 rays" in res.info["error"]
 
 

@@ -170,7 +170,8 @@ def test_injected_solver_failures_are_survived_and_counted(run_cfg, monkeypatch)
     assert s["solver_failures"] == 3
     steps = pd.read_parquet(out / record.STEPS)
     assert list(steps.index[steps["fallback"]]) == [3, 4, 8]
-    assert steps.loc[3, "status"] == "exception:SolverError"
+    assert steps.loc[3, "status"] == "exception"
+    assert steps.loc[3, "solver_status"] == "SolverError"
 
 
 def test_module_entry_point_runs_from_the_repository_root(tmp_path: Path) -> None:

@@ -176,7 +176,8 @@ def test_solver_exception_falls_back_to_shifted_plan(monkeypatch: pytest.MonkeyP
 
     monkeypatch.setattr(ctrl.problem, "solve", broken)
     res = ctrl.step(0.1, X0, ctx())
-    assert res.status == "solver_error" and res.fallback and not res.ok
+    assert res.status == "failed" and res.solver_status == "solver_error"
+    assert res.fallback and not res.ok
     assert res.info["error"] == "injected failure"
     np.testing.assert_array_equal(res.u, first.u_pred[1])
     np.testing.assert_array_equal(res.u_pred[:-1], first.u_pred[1:])
@@ -193,7 +194,7 @@ def test_direct_solver_crash_is_survived(monkeypatch: pytest.MonkeyPatch) -> Non
 
     monkeypatch.setattr(ctrl.direct, "solve", crash)
     res = ctrl.step(0.1, X0, ctx())
-    assert res.status == "exception:RuntimeError" and res.fallback
+    assert res.status == "exception" and res.solver_status == "RuntimeError" and res.fallback
     np.testing.assert_array_equal(res.u, first.u_pred[1])
 
 

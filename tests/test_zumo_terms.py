@@ -6,6 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from mpclab.objectives.base import TermContext
 from mpclab.objectives.potential import (
     GoalAttraction,
     HeadingNearGoal,
@@ -24,12 +25,13 @@ def value(term, p1, u=(0.0, 0.0), goal=(0.4, 0.4, 0.0), x0=(0.0, 0.0, 0.0), det=
     X = ca.DM(np.column_stack([x0, p1]))
     U = ca.DM(np.asarray(u, dtype=float).reshape(2, 1))
     det = np.asarray(det, dtype=float).reshape(-1, 2)
-    p = {
-        "goal": ca.DM(goal), "x0": ca.DM(x0), "target": ca.DM(np.column_stack([goal, goal])),
-        "detections": ca.DM(det.T if len(det) else np.full((2, 1), 1e3)),
-        "mask": ca.DM(np.asarray(mask, dtype=float) if len(det) else [0.0]),
-    }
-    return float(term.casadi_cost(X, U, p))
+    ctx = TermContext(
+        goal=ca.DM(goal), x0=ca.DM(x0), target=ca.DM(np.column_stack([goal, goal])),
+        u_prev=ca.DM.zeros(2),
+        detections=ca.DM(det.T if len(det) else np.full((2, 1), 1e3)),
+        mask=ca.DM(np.asarray(mask, dtype=float) if len(det) else [0.0]),
+    )
+    return float(term.casadi_cost(X, U, ctx))
 
 
 def test_zumo_kinematics() -> None:
@@ -88,8 +90,8 @@ def test_terms_finite_derivatives_at_zero_distance() -> None:
     # at the goal and on a detected point the sqrt(. + eps) keeps gradients finite
     X = ca.SX.sym("X", 3, 2)
     U = ca.SX.sym("U", 2, 1)
-    p = {"goal": ca.DM([0.4, 0.4, 0]), "x0": ca.DM([0, 0, 0]),
-         "detections": ca.DM([[0.4], [0.4]]), "mask": ca.DM([1.0])}
+    p = TermContext(goal=ca.DM([0.4, 0.4, 0]), x0=ca.DM([0, 0, 0]), target=None,
+                    u_prev=ca.DM.zeros(2), detections=ca.DM([[0.4], [0.4]]), mask=ca.DM([1.0]))
     for term in (GoalAttraction(), HeadingNearGoal(), ObstacleRepulsion(), LeftHandPull()):
         term.bind(PLANT)
         grad = ca.Function("g", [X, U], [ca.gradient(term.casadi_cost(X, U, p), X)])

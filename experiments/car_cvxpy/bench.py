@@ -19,9 +19,10 @@ import cvxpy as cp
 import numpy as np
 import pandas as pd
 
-from mpclab.controllers.base import ControlStep, StepContext
+from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
 from mpclab.controllers.cvxpy import CvxpyMPC
 from mpclab.experiment import build_run, compose
+from mpclab.objectives.base import TermContext
 from mpclab.sim import simulate
 
 
@@ -33,7 +34,7 @@ class RebuildEveryStep(CvxpyMPC):
         A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
         nx, nu, T, p = self.plant.nx, self.plant.nu, self.horizon, self.plant
         X, U = cp.Variable((nx, T + 1)), cp.Variable((nu, T))
-        target = {"target": ctx.target.T}
+        target = TermContext(x0=x, target=ctx.target.T, u_prev=np.zeros(nu))
         stages = []
         for k in range(T):
             cons = [X[:, k + 1] == A[k] @ X[:, k] + B[k] @ U[:, k] + c[k]]
@@ -47,10 +48,10 @@ class RebuildEveryStep(CvxpyMPC):
         prob = cp.Problem(cp.Minimize(cost), cons)
         prob.solve(solver=self.solver)
         if prob.status != cp.OPTIMAL:
-            return self._failed(str(prob.status), x, "")
-        return ControlStep(
+            return self._failed(SolveStatus.failed, x, str(prob.status))
+        return ControlStep(  # one linearize-and-solve pass, as the study: truncated
             u=U.value[:, 0].copy(), x_pred=X.value.T.copy(), u_pred=U.value.T.copy(),
-            status="optimal", cost=float(prob.value),
+            status=SolveStatus.truncated, cost=float(prob.value), solver_status=prob.status,
         )
 
 

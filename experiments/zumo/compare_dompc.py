@@ -27,6 +27,7 @@ import numpy as np
 
 from mpclab.controllers.base import StepContext
 from mpclab.experiment import build_run, compose, run_experiment
+from mpclab.objectives.base import TermContext
 from mpclab.registry import register_all
 
 warnings.filterwarnings("ignore")
@@ -46,8 +47,9 @@ def dompc_controller(run, names_active=None):
     model.set_rhs("x", plant.F(x, u, dt))
     model.setup()
     goal = ca.DM(run.scenario.goal)
-    p = {"goal": goal, "x0": model.tvp["p0"], "target": ca.repmat(goal, 1, 2),
-         "detections": model.tvp["det"], "mask": model.tvp["mask"]}
+    p = TermContext(goal=goal, x0=model.tvp["p0"], target=ca.repmat(goal, 1, 2),
+                    u_prev=ca.DM.zeros(plant.nu), detections=model.tvp["det"],
+                    mask=model.tvp["mask"])
     X = ca.horzcat(model.x["x"], model.x["x"])  # column 1 is the costed state
     state_cost, effort = 0, 0
     for name, term in ctrl.objective.terms.items():

@@ -28,7 +28,7 @@ import pandas as pd
 from mpclab.approx.evaluate import visited_features
 from mpclab.approx.export_c import c_compiler, time_compiled
 from mpclab.approx.mlp import MLP
-from mpclab.controllers.base import ControlStep
+from mpclab.controllers.base import ControlStep, SolveStatus
 from mpclab.experiment import build_run, compose
 from mpclab.sim import simulate
 
@@ -63,7 +63,7 @@ class _Constant:
 
     def __call__(self, t, x, ctx) -> ControlStep:
         return ControlStep(u=self.u.copy(), x_pred=x[None, :], u_pred=self.ctrl._no_plan,
-                           status="optimal")
+                           status=SolveStatus.converged)
 
 
 def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:

@@ -19,6 +19,7 @@ from mpclab import record
 from mpclab.approx.dataset import run_dirs
 from mpclab.approx.features import features
 from mpclab.experiment import build_run
+from mpclab.objectives.base import TermContext
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
@@ -82,8 +83,8 @@ class StageCost:
         nx, nu, M = plant.nx, plant.nu, max_detections
         X, U = ca.SX.sym("X", nx, 2), ca.SX.sym("U", nu, 1)
         goal, det, mask = ca.SX.sym("goal", nx), ca.SX.sym("det", 2, M), ca.SX.sym("mask", M)
-        p = {"x0": X[:, 0], "goal": goal, "target": ca.repmat(goal, 1, 2),
-             "detections": det, "mask": mask}
+        p = TermContext(x0=X[:, 0], goal=goal, target=ca.repmat(goal, 1, 2),
+                        u_prev=ca.DM.zeros(nu), detections=det, mask=mask)
         cost = sum(term.casadi_cost(X, U, p) for term in obj)
         self.f = ca.Function("stage", [X, U, goal, det, mask], [cost])
         self.M = M

@@ -1,10 +1,10 @@
 """Train the MLP that imitates the MPC law, with scikit-learn's ``MLPRegressor``.
 
-Rows the expert solved (status ``optimal``, no fallback) become ``(features, u)`` pairs;
-whole runs are held out (``held_out`` of them), so the held-out error is measured on
-trajectories the net never saw. Inputs are standardized, outputs scaled to the input bounds
-(``u / u_max`` for symmetric bounds, the study's ``u / 10``); both scalings are folded into
-the saved :class:`~mpclab.approx.mlp.MLP`.
+Rows the expert solved to convergence (status ``converged``, no fallback) become
+``(features, u)`` pairs; whole runs are held out (``held_out`` of them), so the held-out
+error is measured on trajectories the net never saw. Inputs are standardized, outputs scaled
+to the input bounds (``u / u_max`` for symmetric bounds, the study's ``u / 10``); both
+scalings are folded into the saved :class:`~mpclab.approx.mlp.MLP`.
 
     uv run python -m mpclab.approx.train DATA.parquet -o weights.npz [train.hidden=[64,64] ...]
 """
@@ -55,7 +55,8 @@ class TrainReport:
 
 def pairs(data: pd.DataFrame, conf: TrainConf, inputs: list[str]) -> tuple[np.ndarray, ...]:
     """``(Z, U, run)`` of the rows the expert solved."""
-    ok = (data["status"] == "optimal") & ~data["fallback"].astype(bool)
+    # "optimal": how datasets recorded before the solve statuses labelled an IPOPT success
+    ok = data["status"].isin(["converged", "optimal"]) & ~data["fallback"].astype(bool)
     d = data[ok]
     ray_cols = sorted((c for c in d.columns if c[0] == "d" and c[1:].isdigit()),
                       key=lambda c: int(c[1:]))

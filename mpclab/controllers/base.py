@@ -1,15 +1,18 @@
 """The controller interface every backend implements, and the shared failure fallback.
 
-``step(t, x, ctx)`` returns a :class:`ControlStep`. A backend implements ``_solve``; the
-base class turns an exception or a non-optimal status into the fallback (the previous plan
-shifted by one step, or zero input when there is none) and records the status, so a failed
-solve never ends a run.
+``step(t, x, ctx)`` returns a :class:`ControlStep` whose ``status`` is a :class:`SolveStatus`:
+what the solver did (converged, truncated at a cap, infeasible, failed, raised), with the
+solver's own return string and iteration count beside it. A backend implements ``_solve``;
+the base class turns an exception, an unusable status or a non-finite result into the
+fallback (the previous plan shifted by one step, or zero input when there is none) and
+records the status, so a failed solve never ends a run.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -19,8 +22,26 @@ from mpclab.plants.base import Plant
 
 FloatArray = npt.NDArray[np.float64]
 
-#: statuses that count as a successful solve; anything else triggers the fallback
-OK_STATUSES = frozenset({"optimal"})
+
+
+class SolveStatus(StrEnum):
+    """What one controller call's solver did: one vocabulary for every backend."""
+
+    #: met the solver's own tolerance (or an exact solve: closed form, a network evaluation)
+    converged = "converged"
+    #: stopped at an iteration or time cap with a usable iterate (real-time iteration by
+    #: design), or at a reduced accuracy; applied, never called converged
+    truncated = "truncated"
+    #: the solver proved the problem infeasible
+    infeasible = "infeasible"
+    #: the solver stopped without a usable iterate (or gave a non-finite one)
+    failed = "failed"
+    #: the solver raised
+    exception = "exception"
+
+
+#: statuses whose result is applied; anything else triggers the fallback
+USABLE = frozenset({SolveStatus.converged, SolveStatus.truncated})
 
 
 @dataclass
@@ -57,19 +78,31 @@ class ControlStep:
     """One controller call's result.
 
     ``x_pred (T+1, nx)`` and ``u_pred (T, nu)`` are the predicted horizon; ``u`` is applied.
+    ``status`` says what the solver did; ``solver_status`` is the solver's own return string
+    (``"Solve_Succeeded"``, ``"Maximum_Iterations_Exceeded"``, Clarabel's ``"Solved"``, ...)
+    and ``iterations`` its iteration count (None where it has none).
     """
 
     u: FloatArray
     x_pred: FloatArray
     u_pred: FloatArray
-    status: str
+    status: SolveStatus
     cost: float = float("nan")
     fallback: bool = False
+    solver_status: str = ""
+    iterations: int | None = None
     info: dict[str, Any] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
-        return self.status in OK_STATUSES
+        """Whether the result is usable (converged or truncated)."""
+        return self.status in USABLE
+
+    @property
+    def finite(self) -> bool:
+        """Whether the input and the predicted horizon are all finite numbers."""
+        return bool(np.isfinite(self.u).all() and np.isfinite(self.x_pred).all()
+                    and np.isfinite(self.u_pred).all())
 
 
 class Controller(ABC):
@@ -106,11 +139,14 @@ class Controller(ABC):
         try:
             res = self._solve(t, x, ctx)
         except Exception as exc:  # a solver crash must not end a sweep: record and fall back
-            res = self._failed(f"exception:{type(exc).__name__}", x, str(exc))
+            res = self._failed(SolveStatus.exception, x, type(exc).__name__, str(exc))
+        if res.ok and not res.finite:  # a "success" with NaN or inf in it is a failure
+            res = self._failed(SolveStatus.failed, x, f"non_finite({res.solver_status})",
+                               "the solver returned non-finite values", res.iterations)
         if res.ok:
             self._plan = res
             return res
-        return self._fallback(x, res.status, res.info)
+        return self._fallback(x, res)
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         """Backend-specific figures for ``summary.json`` computed from the step log."""
@@ -120,12 +156,16 @@ class Controller(ABC):
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         """Solve the problem at ``x``; return the result with the solver's status."""
 
-    def _failed(self, status: str, x: FloatArray, message: str = "") -> ControlStep:
+    def _failed(
+        self, status: SolveStatus, x: FloatArray, solver_status: str = "", message: str = "",
+        iterations: int | None = None,
+    ) -> ControlStep:
         """A failed solve's result; :meth:`step` replaces it with the fallback."""
         T, nu = self.horizon, self.plant.nu
         return ControlStep(
             u=np.zeros(nu), x_pred=np.tile(x, (T + 1, 1)), u_pred=np.zeros((T, nu)),
-            status=status, info={"error": message} if message else {},
+            status=SolveStatus(status), solver_status=solver_status, iterations=iterations,
+            info={"error": message} if message else {},
         )
 
     @property
@@ -133,7 +173,15 @@ class Controller(ABC):
         """The last plan applied (optimal or fallback), for warm starts."""
         return self._plan
 
-    def _fallback(self, x: FloatArray, status: str, info: dict[str, Any]) -> ControlStep:
+    @property
+    def previous_input(self) -> FloatArray:
+        """The input applied at the last step (zero, clipped to the bounds, before the first),
+        for input-rate terms."""
+        if self._plan is None:
+            return self.plant.clip_input(np.zeros(self.plant.nu))
+        return np.asarray(self._plan.u, dtype=float)
+
+    def _fallback(self, x: FloatArray, failed: ControlStep) -> ControlStep:
         prev = self._plan
         zero = self.plant.clip_input(np.zeros(self.plant.nu))
         if prev is None or self.horizon == 0:
@@ -142,10 +190,7 @@ class Controller(ABC):
             u_pred = shift(prev.u_pred)
             u = u_pred[0].copy()
         x_pred = self.plant.rollout(x, u_pred, self.dt)
-        res = ControlStep(
-            u=u, x_pred=x_pred, u_pred=u_pred, status=status,
-            fallback=True, info=info,
-        )
+        res = replace(failed, u=u, x_pred=x_pred, u_pred=u_pred, fallback=True)
         self._plan = replace(res)
         return res
 

@@ -34,12 +34,13 @@ from mpclab.controllers.base import (
     Controller,
     ControlStep,
     FloatArray,
+    SolveStatus,
     StepContext,
     shift,
     terminal_rows,
 )
 from mpclab.errors import ConfigError
-from mpclab.objectives.base import Objective
+from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
 from mpclab.quiet import c_stdout_silenced
 from mpclab.registry import component
@@ -61,10 +62,46 @@ class QpSolver(StrEnum):
     qrqp = "qrqp"
 
 
-#: solver return statuses that count as a solved step
-_IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
-#: one SQP step ends on the iteration limit by design; the QP itself must have succeeded
-_RTI_OK = {"Solve_Succeeded", "Maximum_Iterations_Exceeded"}
+#: solvers' own return strings that mean a stop short of the full tolerance with a usable
+#: iterate (an iteration or time cap, IPOPT's reduced "acceptable" tolerance)
+_TRUNCATED = frozenset({
+    "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
+    "Maximum_WallTime_Exceeded", "Search_Direction_Becomes_Too_Small",
+})
+#: CasADi's unified return status -> ours (``SOLVER_RET_SUCCESS`` is refined by _TRUNCATED)
+_UNIFIED = {
+    "SOLVER_RET_SUCCESS": SolveStatus.converged,
+    "SOLVER_RET_LIMITED": SolveStatus.truncated,
+    "SOLVER_RET_INFEASIBLE": SolveStatus.infeasible,
+    "SOLVER_RET_NAN": SolveStatus.failed,
+    "SOLVER_RET_EXCEPTION": SolveStatus.exception,
+}
+
+
+def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
+    """What an ``nlpsol`` did in its last call: ``(status, return string, iterations)``.
+
+    ``stats()`` raises for some plugins when they stop without a status string (sqpmethod
+    after a failed QP); that is a failed solve, not a crash. IPOPT's "acceptable" level and
+    an iteration cap count as truncated; fatrop's ``return_status`` is a number, so its
+    ``success`` flag decides.
+    """
+    try:
+        stats = fn.stats()
+    except RuntimeError:
+        return SolveStatus.failed, "no_status", None
+    raw = str(stats.get("return_status", ""))
+    iters = stats.get("iter_count")
+    iters = int(iters) if iters is not None else None
+    if raw in _TRUNCATED:
+        return SolveStatus.truncated, raw, iters
+    if stats.get("success"):
+        return SolveStatus.converged, raw or "success", iters
+    unified = str(stats.get("unified_return_status", ""))
+    status = _UNIFIED.get(unified, SolveStatus.failed)
+    if status is SolveStatus.converged:  # success is False: the flag and the code disagree
+        status = SolveStatus.failed
+    return status, raw or unified or "unknown", iters
 
 
 @dataclass
@@ -124,8 +161,6 @@ class CasadiMPC(Controller):
     solver_options
         Extra options for ``nlpsol`` (e.g. ``{"ipopt.linear_solver": "ma27"}``).
     """
-
-    log_columns = ("iterations",)
 
     def __init__(
         self,
@@ -189,8 +224,10 @@ class CasadiMPC(Controller):
         det = ca.SX.sym("detections", 2, M)
         mask = ca.SX.sym("mask", M)
         active = ca.SX.sym("active", len(self._names))
-        p = {"x0": x0, "goal": goal, "target": target, "detections": det, "mask": mask}
-        P = ca.vertcat(x0, goal, ca.vec(target), ca.vec(det), mask, active)
+        u_prev = ca.SX.sym("u_prev", nu)
+        p = TermContext(x0=x0, target=target, u_prev=u_prev, goal=goal, detections=det,
+                        mask=mask)
+        P = ca.vertcat(x0, goal, ca.vec(target), ca.vec(det), mask, active, u_prev)
         if self.collision_distance > 0:
             radius = ca.SX.sym("radius", M)  # R_i, see the module docstring
             P = ca.vertcat(P, radius)
@@ -301,7 +338,7 @@ class CasadiMPC(Controller):
             act = np.array([1.0 if n in ctx.active else 0.0 for n in self._names])
         target = np.asarray(ctx.target, dtype=float)
         parts = [x, np.asarray(ctx.goal, dtype=float), target.T.ravel("F"), det.ravel("F"), mask,
-                 act]
+                 act, self.previous_input]
         if self.collision_distance > 0:
             ix, iy = (self.plant.state_index(s) for s in self.plant.position)
             d0 = np.hypot(det[0] - x[ix], det[1] - x[iy])
@@ -347,26 +384,23 @@ class CasadiMPC(Controller):
         if self.warm_start and self._lam_g is not None and self.previous_plan is not None:
             args["lam_x0"], args["lam_g0"] = self._lam_x, self._lam_g
         sol = self.solver_fn(**args)
-        stats = self.solver_fn.stats()
-        ok = _RTI_OK if self.solver is CasadiSolver.sqp_rti else _IPOPT_OK
-        status = str(stats.get("return_status", "unknown"))
-        info = {"iterations": int(stats.get("iter_count", -1))}
+        status, raw, iters = read_status(self.solver_fn)
         nu, T = self.plant.nu, self.horizon
         w = np.asarray(sol["x"], dtype=float).ravel()
-        if status in ok and not self._within_bounds(w):
-            status = "qp_failed_out_of_bounds"  # an SQP step whose QP failed silently
-        if status not in ok or not np.all(np.isfinite(w)):
+        if status in (SolveStatus.converged, SolveStatus.truncated) and not (
+            np.all(np.isfinite(w)) and self._within_bounds(w)
+        ):  # an iterate outside its bounds: an SQP step whose QP failed silently
+            status, raw = SolveStatus.failed, f"{raw}:out_of_bounds"
+        if status not in (SolveStatus.converged, SolveStatus.truncated):
             self._lam_x = self._lam_g = None
-            res = self._failed(status, x)
-            res.info.update(info)
-            return res
+            return self._failed(status, x, raw, iterations=iters)
         self._lam_x = self._shift_lam_x(np.asarray(sol["lam_x"], dtype=float).ravel())
         self._lam_g = np.asarray(sol["lam_g"], dtype=float).ravel()
         X = np.asarray(self._plan_fn(w, args["p"]), dtype=float).T  # (T+1, nx)
         U = w[w.size - nu * T:].reshape(T, nu)
         return ControlStep(
-            u=U[0].copy(), x_pred=X, u_pred=U, status="optimal", cost=float(sol["f"]),
-            info=info,
+            u=U[0].copy(), x_pred=X, u_pred=U, status=status, cost=float(sol["f"]),
+            solver_status=raw, iterations=iters,
         )
 
     def _within_bounds(self, w: FloatArray, tol: float = 1e-6) -> bool:
@@ -383,9 +417,7 @@ class CasadiMPC(Controller):
         return np.concatenate([lx.ravel(), lu.ravel()])
 
     def metrics(self, steps: Any) -> dict[str, Any]:
-        it = steps["iterations"].dropna() if "iterations" in steps else []
-        return {"solver": self.solver.value, "iterations_median": float(np.median(it)) if len(it)
-                else None, "collision_distance": self.collision_distance}
+        return {"solver": self.solver.value, "collision_distance": self.collision_distance}
 
 
 def _enum(cls: type[Enum], value: Any, where: str) -> Any:

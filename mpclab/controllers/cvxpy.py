@@ -21,6 +21,7 @@ from mpclab.controllers.base import (
     Controller,
     ControlStep,
     FloatArray,
+    SolveStatus,
     StepContext,
     shift,
     terminal_rows,
@@ -28,7 +29,7 @@ from mpclab.controllers.base import (
 from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, SolveVia
 from mpclab.errors import ConfigError
 from mpclab.lazy import lazy_import
-from mpclab.objectives.base import Objective
+from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 
@@ -138,8 +139,9 @@ class CvxpyMPC(Controller):
         cons += _box(U, self.plant.u_lb, self.plant.u_ub)
         cons += _box(X[:, 1:], self.plant.x_lb, self.plant.x_ub)
         cons += [X[i, T] == value for i, value in terminal_rows(self.plant, terminal)]
-        params = {"target": self.p_target}
-        cost = sum(term.cvxpy_cost(X, U, params) for term in self.objective)
+        self.p_u_prev = cp.Parameter(nu, name="u_prev")
+        ctx = TermContext(x0=self.p_x0, target=self.p_target, u_prev=self.p_u_prev)
+        cost = sum(term.cvxpy_cost(X, U, ctx) for term in self.objective)
         self.problem = cp.Problem(cp.Minimize(cost), cons)
         if not self.problem.is_dpp():
             raise ConfigError(
@@ -178,6 +180,7 @@ class CvxpyMPC(Controller):
         Xbar, Ubar = self._linearization_points(x)
         self.p_x0.value = x
         self.p_target.value = ctx.target.T
+        self.p_u_prev.value = self.previous_input
         for _ in range(self.iterations):
             A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
             nx = self.plant.nx
@@ -185,13 +188,17 @@ class CvxpyMPC(Controller):
                 [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
                 axis=1,
             )
-            status, values, cost, message = self.qp.solve()
-            if status != cp.OPTIMAL or values is None:
-                return self._failed(status, x, message)
-            Xv, Uv = values
+            sol = self.qp.solve()
+            if sol.values is None:
+                return self._failed(sol.status, x, sol.raw, sol.message, sol.iterations)
+            Xv, Uv = sol.values
             Xbar, Ubar = Xv.T[:-1], Uv.T
+        # a fixed number of linearize-and-solve passes: the QP converged, the successive
+        # linearization was not iterated to convergence
         return ControlStep(
-            u=Uv[:, 0].copy(), x_pred=Xv.T.copy(), u_pred=Uv.T.copy(), status="optimal", cost=cost
+            u=Uv[:, 0].copy(), x_pred=Xv.T.copy(), u_pred=Uv.T.copy(),
+            status=SolveStatus.truncated, cost=sol.objective, solver_status=sol.raw,
+            iterations=sol.iterations,
         )
 
 

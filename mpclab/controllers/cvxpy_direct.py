@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
 import numpy as np
 
+from mpclab.controllers.base import USABLE, SolveStatus
 from mpclab.errors import ConfigError
 from mpclab.lazy import lazy_import
 
@@ -43,7 +45,40 @@ _STATUS = {
     "MaxTime": "user_limit",
 }
 _SOLVER_ERROR = "solver_error"
-_OK = frozenset({"optimal", "optimal_inaccurate"})
+#: CVXPY's words -> what the solver did; "optimal_inaccurate" met only a reduced tolerance
+#: (usable, not converged); "user_limit" (a cap) returns no iterate through CVXPY: failed
+SOLVE_STATUS = {
+    "optimal": SolveStatus.converged,
+    "optimal_inaccurate": SolveStatus.truncated,
+    "infeasible": SolveStatus.infeasible,
+    "infeasible_inaccurate": SolveStatus.infeasible,
+}
+
+
+@dataclass
+class QPSolution:
+    """One solve of a :class:`CompiledQP`.
+
+    ``values`` (the variables' values) is None unless ``status`` is usable; ``raw`` is the
+    status in CVXPY's words (``"optimal"``, ``"infeasible"``, ``"solver_error"``, ...).
+    """
+
+    status: SolveStatus
+    raw: str
+    values: list[np.ndarray] | None = None
+    objective: float = float("nan")
+    iterations: int | None = None
+    message: str = ""
+
+
+def solution(raw: str, values: list[np.ndarray] | None, objective: float,
+             iterations: int | None, message: str = "") -> QPSolution:
+    """A :class:`QPSolution` from CVXPY's status word; no values unless usable."""
+    status = SOLVE_STATUS.get(raw, SolveStatus.failed)
+    if status not in USABLE or values is None:
+        status = status if status not in USABLE else SolveStatus.failed
+        return QPSolution(status, raw, None, float("nan"), iterations, message)
+    return QPSolution(status, raw, values, objective, iterations, message)
 
 
 class SolveVia(StrEnum):
@@ -134,21 +169,21 @@ class CompiledQP:
         if self.direct is not None:
             self.direct.reset()
 
-    def solve(self) -> tuple[str, list[np.ndarray] | None, float, str]:
-        """``(status, variable values or None, objective, error message)``; the status in
-        CVXPY's words (``"optimal"``, ``"infeasible"``, ``"solver_error"``, ...)."""
+    def solve(self) -> QPSolution:
+        """Solve at the parameters' current values."""
         if self.direct is not None:
-            return (*self.direct.solve(), "")
+            return self.direct.solve()
         warm, self._cold = self.warm_start and not self._cold, False
         try:
             self.problem.solve(solver=self.solver, warm_start=warm, **self.options)
         except cp.error.SolverError as exc:
-            return _SOLVER_ERROR, None, float("nan"), str(exc)
-        status = str(self.problem.status)
+            return solution(_SOLVER_ERROR, None, float("nan"), None, str(exc))
         values = [v.value for v in self.variables]
         if any(v is None for v in values):
-            return status, None, float("nan"), ""
-        return status, values, float(self.problem.value), ""
+            return solution(str(self.problem.status), None, float("nan"), None)
+        stats = self.problem.solver_stats
+        iters = None if stats is None or stats.num_iters is None else int(stats.num_iters)
+        return solution(str(self.problem.status), values, float(self.problem.value), iters)
 
 
 class DirectClarabel:
@@ -301,11 +336,8 @@ class DirectClarabel:
         and kept through updates, so a new run starts from the state a fresh one would)."""
         self._solver = None
 
-    def solve(self) -> tuple[str, list[np.ndarray] | None, float]:
-        """Solve at the parameters' current values: ``(status, variable values, objective)``.
-
-        The status uses CVXPY's words; values are None unless a solution exists.
-        """
+    def solve(self) -> QPSolution:
+        """Solve at the parameters' current values."""
         if self._solver is None:
             P, q, d, A, b = self.data()
             self._solver = self._clarabel.DefaultSolver(
@@ -315,12 +347,10 @@ class DirectClarabel:
             Pv, q, d, Av, b = self._values()
             self._solver.update(P=Pv, q=q, A=Av, b=b)
         sol = self._solver.solve()
-        status = _STATUS.get(str(sol.status), _SOLVER_ERROR)
-        if status not in _OK:
-            return status, None, float("nan")
+        raw = _STATUS.get(str(sol.status), _SOLVER_ERROR)
         x = np.asarray(sol.x)
         values = [
             x[col : col + int(np.prod(shape))].reshape(shape, order="F")
             for _, col, shape in self._vars
         ]
-        return status, values, float(sol.obj_val) + d
+        return solution(raw, values, float(sol.obj_val) + d, int(sol.iterations))

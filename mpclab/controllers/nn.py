@@ -16,7 +16,7 @@ import numpy as np
 
 from mpclab.approx.features import FeatureSet, n_features
 from mpclab.approx.mlp import MLP, Activation, activate
-from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext
+from mpclab.controllers.base import Controller, ControlStep, FloatArray, SolveStatus, StepContext
 from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
 from mpclab.registry import component
@@ -115,7 +115,9 @@ class NNController(Controller):
         u = self._out.copy()
         for v in u.tolist():
             if v != v:  # NaN from a degenerate input (e.g. a range of 0 inside a disc)
-                return self._failed("nan_output", x)
+                return self._failed(SolveStatus.failed, x, "nan_output")
         np.minimum(np.maximum(u, self.plant.u_lb, out=u), self.plant.u_ub, out=u)
-        return ControlStep(u=u, x_pred=x[None, :], u_pred=self._no_plan, status="optimal")
+        # an exact evaluation: nothing to iterate, so nothing short of converged
+        return ControlStep(u=u, x_pred=x[None, :], u_pred=self._no_plan,
+                           status=SolveStatus.converged, solver_status="evaluated")
 

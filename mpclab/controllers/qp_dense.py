@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, SolveVia
+from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, QPSolution, SolveVia
 from mpclab.lazy import lazy_import
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
@@ -263,11 +263,8 @@ class CvxpyBoxQP:
         """Start the next run as a fresh solver would."""
         self.qp.reset()
 
-    def solve(self, H: FloatArray, g: FloatArray) -> tuple[FloatArray | None, str]:
-        """``(z, status)``; ``z`` is None unless the solver reports optimal."""
+    def solve(self, H: FloatArray, g: FloatArray) -> QPSolution:
+        """The QP's solution; its ``values`` are None unless the solve is usable."""
         self.L.value = np.linalg.cholesky(H).T
         self.g.value = g
-        status, values, _, _ = self.qp.solve()
-        if status != cp.OPTIMAL or values is None:
-            return None, status
-        return np.asarray(values[0], dtype=float), "optimal"
+        return self.qp.solve()

@@ -33,7 +33,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.controllers.base import Controller, ControlStep, FloatArray, StepContext
+from mpclab.controllers.base import (
+    Controller,
+    ControlStep,
+    FloatArray,
+    SolveStatus,
+    StepContext,
+)
 from mpclab.controllers.cvxpy_direct import SolveVia
 from mpclab.controllers.qp_dense import (
     CvxpyBoxQP,
@@ -257,9 +263,9 @@ class ScheduledMPC(Controller):
             g = m.K.dot(v)
             if k:
                 g += k * m.g_shift
-            z, status = self._qp(m.H, g)
+            z, status, raw = self._qp(m.H, g)
             if z is None:
-                return self._failed(x, status, op)
+                return self._failed_at(status, x, raw, op)
             w[nx:-1] = z
             u_cost = float(np.dot(self._r_diag, z * z))
         X = m.P.dot(w)
@@ -271,9 +277,9 @@ class ScheduledMPC(Controller):
         """Interpolated or adaptive mode: a predictor built for this state, then the QP."""
         op = self.grid.nearest(x)
         Px, Pu, pc = self._model(x)
-        z, status = self._qp(self.qp.hessian(Pu), self.qp.gradient(Px, Pu, pc, x, ref))
+        z, status, raw = self._qp(self.qp.hessian(Pu), self.qp.gradient(Px, Pu, pc, x, ref))
         if z is None:
-            return self._failed(x, status, op)
+            return self._failed_at(status, x, raw, op)
         return self._result(Px @ x + Pu @ z + pc, z, ref, op, float(np.dot(self._r_diag, z * z)))
 
     def _result(
@@ -286,7 +292,7 @@ class ScheduledMPC(Controller):
         e *= e
         return ControlStep(
             u=z if self.nz == nu else z[:nu].copy(), x_pred=X.reshape(T + 1, nx),
-            u_pred=u_pred, status="optimal", cost=float(self._wq.dot(e)) + u_cost,
+            u_pred=u_pred, status=SolveStatus.converged, cost=float(self._wq.dot(e)) + u_cost,
             info={"op": op},
         )
 
@@ -304,20 +310,23 @@ class ScheduledMPC(Controller):
             pc = pc + w * (m.pc + k * m.x_shift if k else m.pc)
         return Px, Pu, pc
 
-    def _qp(self, H: FloatArray, g: FloatArray) -> tuple[FloatArray | None, str]:
+    def _qp(self, H: FloatArray, g: FloatArray) -> tuple[FloatArray | None, SolveStatus, str]:
+        """``(z or None, status, the solver's own word)``; the box QPs here are solved
+        exactly (closed form, or a finite active-set method)."""
         if self._cvx is not None:
-            return self._cvx.solve(H, g)
+            sol = self._cvx.solve(H, g)
+            z = None if sol.values is None else np.asarray(sol.values[0], dtype=float)
+            return z, sol.status, sol.raw
         if self.nz == 2 and self.solver is not QPSolver.active_set:
             z = box_qp_2(*H.ravel()[[0, 1, 3]].tolist(), *g.tolist(), *self._bounds)
-            return np.array(z), "optimal"
-        return box_qp_active_set(H, g, self.lb, self.ub), "optimal"
+            return np.array(z), SolveStatus.converged, "closed_form"
+        return box_qp_active_set(H, g, self.lb, self.ub), SolveStatus.converged, "active_set"
 
-    def _failed(self, x: FloatArray, status: str, op: int) -> ControlStep:
-        T, nu = self.horizon, self.plant.nu
-        return ControlStep(
-            u=np.zeros(nu), x_pred=np.tile(x, (T + 1, 1)), u_pred=np.zeros((T, nu)),
-            status=status, info={"op": op},
-        )
+    def _failed_at(self, status: SolveStatus, x: FloatArray, raw: str, op: int) -> ControlStep:
+        """A failed solve at operating point ``op`` (kept in the step's info)."""
+        res = self._failed(status, x, raw)
+        res.info["op"] = op
+        return res
 
     # ------------------------------------------------------------------ results
     def operating_table(self) -> pd.DataFrame:

@@ -2,8 +2,9 @@
 
 A term is data (weights, targets) plus a way to express itself for each backend that can
 take it: ``cvxpy_cost`` builds a DPP-compliant CVXPY expression, ``casadi_cost`` a CasADi one.
-A backend asks :meth:`Term.supports`; one that a term does not support refuses at
-construction, naming the term and the backends that accept it.
+Both receive the predicted horizon and a :class:`TermContext`, the per-step quantities as the
+backend's own parameters. A backend asks :meth:`Term.require`; one that a term does not
+support refuses at construction, naming the term and the backends that accept it.
 """
 
 from __future__ import annotations
@@ -19,6 +20,36 @@ from mpclab.registry import component
 BACKEND_METHODS = {"cvxpy": "cvxpy_cost", "casadi": "casadi_cost"}
 
 
+@dataclass(frozen=True)
+class TermContext:
+    """What a term may use besides the predicted horizon, as the backend's parameters.
+
+    The CasADi backend hands symbols (column vectors), the CVXPY backend ``cp.Parameter``
+    objects; a field a backend does not provide is None, and a term that needs it refuses
+    that backend (it does not override the backend's method).
+
+    Attributes
+    ----------
+    x0
+        The measured state ``(nx,)``.
+    target
+        The reference over the horizon ``(nx, T+1)``.
+    u_prev
+        The input applied at the previous step ``(nu,)`` (zero before the first).
+    goal
+        The goal state ``(nx,)``.
+    detections, mask
+        Detected points ``(2, M)`` and ``(M,)`` with 1 for a real point, 0 for padding.
+    """
+
+    x0: Any
+    target: Any
+    u_prev: Any
+    goal: Any = None
+    detections: Any = None
+    mask: Any = None
+
+
 class Term:
     """Base class of objective terms. ``name`` is set by the objective from its config key."""
 
@@ -27,12 +58,12 @@ class Term:
     def bind(self, plant: Any) -> None:
         """Resolve state/input labels against ``plant``; called once by the backend."""
 
-    def cvxpy_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
-        """CVXPY expression over ``X (nx, T+1)``, ``U (nu, T)``; ``p`` holds Parameters."""
+    def cvxpy_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        """CVXPY expression (DPP) over ``X (nx, T+1)``, ``U (nu, T)``."""
         raise NotImplementedError
 
-    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
-        """CasADi expression over ``X (nx, T+1)``, ``U (nu, T)``; ``p`` holds symbols."""
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        """CasADi expression over ``X (nx, T+1)``, ``U (nu, T)``."""
         raise NotImplementedError
 
     @classmethod

@@ -2,9 +2,9 @@
 
 Every term sums over the predicted positions ``p_k``, ``k = 1..T`` (``p_0`` is the measured
 state and only adds a constant). Distances are ``sqrt(|.|^2 + eps)`` so that derivatives stay
-finite at zero distance. The backend's parameter dict ``p`` holds CasADi values (symbols or
-numbers): ``goal (nx, 1)``, ``x0 (nx, 1)`` (the measured state), ``detections (2, M)`` and
-``mask (M, 1)`` (1 for a real detected point, 0 for padding).
+finite at zero distance. They read ``goal``, ``x0`` (the measured state), ``detections (2, M)``
+and ``mask (M, 1)`` (1 for a real detected point, 0 for padding) from the backend's
+:class:`~mpclab.objectives.base.TermContext`: CasADi values (symbols or numbers).
 
 ==========  ===========================================================  ====================
 term        cost                                                         default weights
@@ -20,14 +20,13 @@ with ``g_i = Rot(angle) (p_i - p_0) + p_0`` (``angle = 70 deg``: to the left of 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from mpclab.errors import ConfigError
-from mpclab.objectives.base import Term
+from mpclab.objectives.base import Term, TermContext
 
 
 class _PositionTerm(Term):
@@ -46,9 +45,9 @@ class _PositionTerm(Term):
         """Predicted positions ``x, y`` as row vectors ``(1, T)`` (steps 1..T)."""
         return X[self._ix, 1:], X[self._iy, 1:]
 
-    def _goal_dist(self, X: Any, p: Mapping[str, Any]) -> Any:
+    def _goal_dist(self, X: Any, ctx: TermContext) -> Any:
         x, y = self._xy(X)
-        g = p["goal"]
+        g = ctx.goal
         return ca.sqrt((x - g[self._ix]) ** 2 + (y - g[self._iy]) ** 2 + self.eps)
 
 
@@ -66,8 +65,8 @@ class GoalAttraction(_PositionTerm):
         _positive(C1=C1, L1=L1)
         self.C1, self.L1 = float(C1), float(L1)
 
-    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
-        return ca.sum2(-self.C1 * ca.exp(-self._goal_dist(X, p) / self.L1))
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        return ca.sum2(-self.C1 * ca.exp(-self._goal_dist(X, ctx) / self.L1))
 
 
 class HeadingNearGoal(_PositionTerm):
@@ -83,10 +82,10 @@ class HeadingNearGoal(_PositionTerm):
         if self._ith is None:
             raise ConfigError(f"objective term {self.name!r} needs a plant with a heading")
 
-    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
-        e = p["goal"][self._ith] - X[self._ith, 1:]
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        e = ctx.goal[self._ith] - X[self._ith, 1:]
         wrapped = ca.atan2(ca.sin(e), ca.cos(e))
-        return ca.sum2(wrapped**2 * self.C2 * ca.exp(-self._goal_dist(X, p) / self.L2))
+        return ca.sum2(wrapped**2 * self.C2 * ca.exp(-self._goal_dist(X, ctx) / self.L2))
 
 
 class ObstacleRepulsion(_PositionTerm):
@@ -97,9 +96,9 @@ class ObstacleRepulsion(_PositionTerm):
         _positive(C3=C3, L3=L3)
         self.C3, self.L3 = float(C3), float(L3)
 
-    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
-        dist = _pairwise(*self._xy(X), p["detections"], self.eps)  # (M, T)
-        return ca.sum1(ca.sum2(self.C3 * ca.exp(-dist / self.L3)) * p["mask"])
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        dist = _pairwise(*self._xy(X), ctx.detections, self.eps)  # (M, T)
+        return ca.sum1(ca.sum2(self.C3 * ca.exp(-dist / self.L3)) * ctx.mask)
 
 
 class LeftHandPull(_PositionTerm):
@@ -127,21 +126,21 @@ class LeftHandPull(_PositionTerm):
         a = np.deg2rad(self.angle_deg)
         self._rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
 
-    def pull_points(self, p: Mapping[str, Any]) -> Any:
+    def pull_points(self, ctx: TermContext) -> Any:
         """The attracting points ``g_i`` ``(2, M)``."""
-        x0 = p["x0"]
+        x0 = ctx.x0
         c = ca.vertcat(x0[self._ix], x0[self._iy])
-        det = p["detections"]
+        det = ctx.detections
         M = det.shape[1]
         centre = ca.repmat(c, 1, M)
         return ca.mtimes(ca.DM(self._rot), det - centre) + centre
 
-    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
-        dist = _pairwise(*self._xy(X), self.pull_points(p), self.eps)  # (M, T)
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        dist = _pairwise(*self._xy(X), self.pull_points(ctx), self.eps)  # (M, T)
         W = -self.C4 * ca.exp(-dist / self.L4)
         if self.goal_scaled:
-            W = W * ca.repmat(self._goal_dist(X, p), W.shape[0], 1)  # Q = dist_g, (1, T)
-        return ca.sum1(ca.sum2(W) * p["mask"])
+            W = W * ca.repmat(self._goal_dist(X, ctx), W.shape[0], 1)  # Q = dist_g, (1, T)
+        return ca.sum1(ca.sum2(W) * ctx.mask)
 
 
 def _pairwise(x: Any, y: Any, pts: Any, eps: float) -> Any:

@@ -15,7 +15,7 @@ import numpy as np
 
 from mpclab.errors import ConfigError
 from mpclab.lazy import lazy_import
-from mpclab.objectives.base import Term
+from mpclab.objectives.base import Term, TermContext
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
@@ -63,9 +63,9 @@ class QuadraticTracking(Term):
         self._ri, self._r = split(self.input_weights, plant.input_index)
         self._ti, self._t = split(self.terminal_weights, plant.state_index)
 
-    def cvxpy_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
+    def cvxpy_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
         cost = 0
-        target = p["target"]
+        target = ctx.target
         if self._qi:
             err = X[self._qi, 1:] - target[self._qi, 1:]
             cost += cp.sum_squares(cp.multiply(self._q[:, None], err))
@@ -75,9 +75,9 @@ class QuadraticTracking(Term):
             cost += cp.sum_squares(cp.multiply(self._t, X[self._ti, -1] - target[self._ti, -1]))
         return cost
 
-    def casadi_cost(self, X: Any, U: Any, p: Mapping[str, Any]) -> Any:
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
         cost = 0
-        target = p["target"]
+        target = ctx.target
         if self._qi:
             err = X[self._qi, 1:] - target[self._qi, 1:]
             cost += ca.sumsqr(ca.diag(self._q) @ err)

@@ -146,10 +146,11 @@ class RerunRecorder(Recorder):
         if ctx.mode != self._mode:
             self._mode = ctx.mode
             b.events.append((ent.MODE_LOG, k, t, f"mode: {ctx.mode or '(none)'}", "INFO"))
-        status = step.status + (" (fallback)" if step.fallback else "")
+        raw = f" ({step.solver_status})" if step.solver_status else ""
+        status = f"{step.status}{raw}" + (", fallback" if step.fallback else "")
         if status != self._status:
             self._status = status
-            level = "INFO" if step.ok else "WARN"
+            level = "INFO" if step.status == "converged" else "WARN"
             b.events.append((ent.SOLVER_LOG, k, t, f"solver: {status}", level))
         self._k = k + 1
         if len(b.k) >= self.batch_steps:

@@ -1,0 +1,59 @@
+"""Input rate: ``sum_k sum_j w_j (u_j[k] - u_j[k-1])^2`` over ``k = 0..T-1``.
+
+``u[-1]`` is the input applied at the previous step (the context's ``u_prev``), so the first
+move is charged against what the plant is doing now: a weight here smooths the applied input
+across samples, not only within one plan.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from mpclab.errors import ConfigError
+from mpclab.lazy import lazy_import
+from mpclab.objectives.base import Term, TermContext
+
+cp = lazy_import("cvxpy")
+
+
+class InputRate(Term):
+    """Quadratic penalty on input changes, the first against the previously applied input.
+
+    Parameters
+    ----------
+    weights
+        ``{input label: weight}`` on ``(u[k] - u[k-1])^2``; inputs not named are free to jump.
+    """
+
+    def __init__(self, weights: Mapping[str, float]) -> None:
+        self.weights = dict(weights or {})
+        if not self.weights:
+            raise ConfigError("InputRate.weights is empty: name at least one input")
+        for label, w in self.weights.items():
+            if not math.isfinite(float(w)) or float(w) < 0:
+                raise ConfigError(f"weights.{label} must be a finite number >= 0, got {w}")
+
+    def bind(self, plant: Any) -> None:
+        try:
+            self._idx = [plant.input_index(label) for label in self.weights]
+        except ValueError as exc:
+            raise ConfigError(f"objective term {self.name!r}: {exc}") from None
+        self._w = np.sqrt(np.array([float(w) for w in self.weights.values()]))
+
+    def cvxpy_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        Ui = U[self._idx, :]
+        first = cp.multiply(self._w, Ui[:, 0] - ctx.u_prev[self._idx])
+        cost = cp.sum_squares(first)
+        if U.shape[1] > 1:
+            cost += cp.sum_squares(cp.multiply(self._w[:, None], Ui[:, 1:] - Ui[:, :-1]))
+        return cost
+
+    def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
+        Ui = U[self._idx, :]
+        du = ca.horzcat(Ui[:, 0] - ctx.u_prev[self._idx], Ui[:, 1:] - Ui[:, :-1])
+        return ca.sumsqr(ca.diag(self._w) @ du)

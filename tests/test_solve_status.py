@@ -1,0 +1,102 @@
+"""Solve statuses: one vocabulary, read robustly, never a capped solve called converged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
+from mpclab.controllers.casadi import CasadiMPC, read_status
+from mpclab.objectives.base import Objective
+from mpclab.objectives.potential import GoalAttraction
+from mpclab.plants.zumo import Zumo
+
+
+def _zumo(**kw) -> CasadiMPC:
+    plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
+    return CasadiMPC(plant, Objective({"J1": GoalAttraction()}), horizon=6, dt=0.2,
+                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+
+
+def _ctx() -> StepContext:
+    goal = np.array([0.4, 0.4, 0.0])
+    return StepContext(goal=goal, target=np.tile(goal, (7, 1)))
+
+
+class _Raises:
+    def stats(self):
+        raise RuntimeError("basic_string: construction from null is not valid")
+
+
+class _Stats:
+    def __init__(self, **stats) -> None:
+        self._stats = stats
+
+    def stats(self):
+        return self._stats
+
+
+@pytest.mark.parametrize(("stats", "expected"), [
+    ({"return_status": "Solve_Succeeded", "success": True, "iter_count": 9},
+     SolveStatus.converged),
+    ({"return_status": "Solved_To_Acceptable_Level", "success": True}, SolveStatus.truncated),
+    ({"return_status": "Maximum_Iterations_Exceeded", "success": False,
+      "unified_return_status": "SOLVER_RET_LIMITED"}, SolveStatus.truncated),
+    ({"return_status": "Infeasible_Problem_Detected", "success": False,
+      "unified_return_status": "SOLVER_RET_INFEASIBLE"}, SolveStatus.infeasible),
+    ({"return_status": "0", "success": True, "iter_count": 7}, SolveStatus.converged),  # fatrop
+    ({"return_status": "1", "success": False}, SolveStatus.failed),
+    ({"return_status": "Whatever", "success": False,
+      "unified_return_status": "SOLVER_RET_SUCCESS"}, SolveStatus.failed),
+])
+def test_status_is_read_from_what_the_solver_says(stats, expected) -> None:
+    status, raw, _ = read_status(_Stats(**stats))
+    assert status is expected and raw == stats["return_status"]
+
+
+def test_stats_that_raise_are_a_failed_solve_not_a_crash() -> None:
+    assert read_status(_Raises()) == (SolveStatus.failed, "no_status", None)
+
+
+@pytest.mark.parametrize("cap", [1, 2])
+def test_an_ipopt_iteration_cap_is_truncated_and_applied(cap: int) -> None:
+    res = _zumo(max_iter=cap).step(0.0, np.array([0.4, 0.8, 0.0]), _ctx())
+    assert res.status is SolveStatus.truncated and not res.fallback
+    assert res.solver_status == "Maximum_Iterations_Exceeded" and res.iterations == cap
+
+
+def test_ipopt_to_tolerance_is_converged() -> None:
+    res = _zumo().step(0.0, np.array([0.4, 0.8, 0.0]), _ctx())
+    assert res.status is SolveStatus.converged and res.solver_status == "Solve_Succeeded"
+    assert res.iterations is not None and res.iterations > 1
+
+
+def test_a_nan_result_labelled_success_is_a_failure_and_falls_back(monkeypatch) -> None:
+    mpc = _zumo()
+    x = np.array([0.4, 0.8, 0.0])
+    first = mpc.step(0.0, x, _ctx())
+
+    def nan_success(t, x, ctx):
+        T, nu = mpc.horizon, mpc.plant.nu
+        return ControlStep(u=np.full(nu, np.nan), x_pred=np.zeros((T + 1, 3)),
+                           u_pred=np.zeros((T, nu)), status=SolveStatus.converged,
+                           solver_status="Solve_Succeeded")
+
+    monkeypatch.setattr(mpc, "_solve", nan_success)
+    res = mpc.step(0.2, x, _ctx())
+    assert res.status is SolveStatus.failed and res.fallback
+    assert res.solver_status == "non_finite(Solve_Succeeded)"
+    np.testing.assert_allclose(res.u, first.u_pred[1])
+
+
+def test_summary_counts_every_status(run_cfg) -> None:
+    res, _ = run_cfg(["+experiment=car_casadi", "controller.max_iter=3"])
+    s = res.summary
+    counts = {st: s[f"solves_{st}"] for st in SolveStatus}
+    assert sum(counts.values()) == s["n_steps"]
+    assert counts[SolveStatus.truncated] > 0  # three IPOPT iterations do not converge
+    assert s["converged_fraction"] == pytest.approx(counts[SolveStatus.converged] / s["n_steps"])
+    steps = res.steps[res.steps["status"] != "final"]
+    capped = steps["solver_status"] == "Maximum_Iterations_Exceeded"
+    assert (steps.loc[capped, "status"] == "truncated").all()
+    assert (steps.loc[capped, "iterations"] == 3).all()
