@@ -21,6 +21,7 @@ from rerun.chunk import RrdReader
 
 from conftest import compose_cfg
 from mpclab import record
+from mpclab.controllers.base import SolveStatus
 from mpclab.errors import ConfigError
 from mpclab.experiment import build_run
 from mpclab.recording import rerun_blueprint as ent
@@ -104,7 +105,14 @@ def test_car_recording_matches_run_record(run_cfg):
     (end,) = temporal(rows, ent.RUN_LOG)
     arrival = result.summary["arrival_time_s"]
     assert end[ent.STEP] == n
-    assert end["TextLog:text"] == [f"run ended: arrived at t = {arrival:.2f} s"]
+    s = result.summary
+    solves = ", ".join(f"{s[f'solves_{st}']} {st}" for st in SolveStatus if s[f"solves_{st}"])
+    assert end["TextLog:text"] == [f"run ended: arrived at t = {arrival:.2f} s; "
+                                   f"solves: {solves}"]
+    quality = [r["Scalars:scalars"][0] for r in temporal(rows, ent.SOLVE_QUALITY)]
+    calls = steps[steps["status"] != "final"]
+    expect = np.where(calls["fallback"], 0.0, np.where(calls["status"] == "converged", 2.0, 1.0))
+    np.testing.assert_array_equal(quality, expect)
     assert len(static(rows, ent.OBSTACLES, "Points2D:positions")) == 0  # the car's world
     assert "name: car_cvxpy" in static(rows, ent.CONFIG, "TextDocument:text")[0]
     assert "rerun-sdk" in static(rows, ent.CONFIG, "TextDocument:text")[0]

@@ -137,7 +137,7 @@ class RerunRecorder(Recorder):
         x_pred = np.asarray(step.x_pred, dtype=float)
         b.horizon.append(x_pred[:, self._pos] if x_pred.ndim == 2 else np.zeros((0, 2)))
         b.solve_time_ms.append(1e3 * float(step.info.get("solve_time_s", np.nan)))
-        b.ok.append(1.0 if step.ok else 0.0)
+        b.quality.append(0.0 if step.fallback else 2.0 if step.status == "converged" else 1.0)
         b.cost.append(float(step.cost))
         b.detections.append(np.asarray(ctx.detections, dtype=float).reshape(-1, 2))
         if self._rays is not None:
@@ -162,8 +162,10 @@ class RerunRecorder(Recorder):
             return
         self._pose_row(self._k, t, np.asarray(x, dtype=float))
         when = f" at t = {summary['arrival_time_s']:.2f} s" if summary.get("arrived") else ""
-        self._buf.events.append((ent.RUN_LOG, self._k, t,
-                                 f"run ended: {summary.get('status')}{when}", "INFO"))
+        solves = ", ".join(f"{n} {k.removeprefix('solves_')}" for k, n in summary.items()
+                           if k.startswith("solves_") and n)
+        self._buf.events.append((ent.RUN_LOG, self._k, t, f"run ended: {summary.get('status')}"
+                                 f"{when}; solves: {solves or 'none'}", "INFO"))
         self._flush()
 
     def close(self) -> None:
@@ -279,7 +281,7 @@ class RerunRecorder(Recorder):
             for j, label in enumerate(self._inputs[: U.shape[1]]):
                 rec.send_columns(f"{ent.INPUTS}/{label}", idx,
                                  rr.Scalars.columns(scalars=U[:, j]))
-            for path, values in ((ent.SOLVE_TIME, b.solve_time_ms), (ent.SOLVER_OK, b.ok),
+            for path, values in ((ent.SOLVE_TIME, b.solve_time_ms), (ent.SOLVE_QUALITY, b.quality),
                                  (ent.COST, b.cost)):
                 rec.send_columns(path, idx, rr.Scalars.columns(scalars=values))
         for path in (ent.MODE_LOG, ent.SOLVER_LOG, ent.RUN_LOG):
@@ -323,7 +325,7 @@ class _StepBuffer:
         self.detections: list[np.ndarray] = []
         self.rays: list[np.ndarray] = []
         self.solve_time_ms: list[float] = []
-        self.ok: list[float] = []
+        self.quality: list[float] = []  # 2 converged, 1 truncated, 0 fell back
         self.cost: list[float] = []
         self.events: list[tuple[str, int, float, str, str]] = []
 

@@ -29,9 +29,9 @@ RAYS = "world/rays"  # per step LineStrips2D: one segment per sensor ray
 DETECTIONS = "world/detections"  # per step Points2D: detected obstacle points
 STATES = "series/states"  # /<label>: Scalars; /<label>/reference: the reference
 INPUTS = "series/inputs"  # /<label>: Scalars
-SOLVER = "series/solver"  # /solve_time_ms, /ok (1 optimal, 0 not), /cost
+SOLVER = "series/solver"  # /solve_time_ms, /quality (SOLVE_QUALITY), /cost
 SOLVE_TIME = f"{SOLVER}/solve_time_ms"
-SOLVER_OK = f"{SOLVER}/ok"
+SOLVE_QUALITY = f"{SOLVER}/quality"
 COST = f"{SOLVER}/cost"
 MODE_LOG = "log/mode"  # TextLog: supervisor mode, on each change
 SOLVER_LOG = "log/solver"  # TextLog: solver status, on each change
@@ -99,8 +99,9 @@ def series_views(
     ]
     views.append(rrb.TimeSeriesView(name="solve time [ms]", origin="/",
                                     contents=[f"{p}/{SOLVE_TIME}" for p in prefixes]))
-    views.append(rrb.TimeSeriesView(name="solver ok (1) / failed (0)", origin="/",
-                                    contents=[f"{p}/{SOLVER_OK}" for p in prefixes]))
+    views.append(rrb.TimeSeriesView(name="solve: converged 2, truncated 1, fell back 0",
+                                    origin="/",
+                                    contents=[f"{p}/{SOLVE_QUALITY}" for p in prefixes]))
     return views
 
 
