@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.controllers.base import USABLE, Controller, ControlStep, SolveStatus, StepContext
+from mpclab.controllers.base import Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
+from mpclab.status import USABLE, SolveStatus
 from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.scenario import Scenario
 

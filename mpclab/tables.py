@@ -25,7 +25,7 @@ import pandas as pd
 import yaml
 
 from mpclab import record
-from mpclab.controllers.base import SolveStatus
+from mpclab.status import SolveStatus
 
 #: status of a run folder whose summary.json is missing or unreadable
 INCOMPLETE = "incomplete"

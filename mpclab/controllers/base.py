@@ -12,36 +12,15 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
-from enum import StrEnum
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from mpclab.plants.base import Plant
+from mpclab.status import USABLE, SolveStatus
 
 FloatArray = npt.NDArray[np.float64]
-
-
-
-class SolveStatus(StrEnum):
-    """What one controller call's solver did: one vocabulary for every backend."""
-
-    #: met the solver's own tolerance (or an exact solve: closed form, a network evaluation)
-    converged = "converged"
-    #: stopped at an iteration or time cap with a usable iterate (real-time iteration by
-    #: design), or at a reduced accuracy; applied, never called converged
-    truncated = "truncated"
-    #: the solver proved the problem infeasible
-    infeasible = "infeasible"
-    #: the solver stopped without a usable iterate (or gave a non-finite one)
-    failed = "failed"
-    #: the solver raised
-    exception = "exception"
-
-
-#: statuses whose result is applied; anything else triggers the fallback
-USABLE = frozenset({SolveStatus.converged, SolveStatus.truncated})
 
 
 @dataclass
