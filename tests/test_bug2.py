@@ -73,3 +73,39 @@ def test_rehit_closer_and_reset() -> None:
 def test_modes_must_be_named() -> None:
     with pytest.raises(ConfigError, match="modes"):
         Bug2(Zumo(), modes={"go_to_goal": ["J1"]})
+
+
+def test_goal_in_sight_leaves_off_the_mline() -> None:
+    """A goal beside a wall, in sight and nearer than the hit point: leave without reaching
+    the m-line (zumo_goal_near_wall followed the wall around instead: 17 s against 4.4 s)."""
+    sup = make()
+    sup.sight = 0.3
+    sup.update(0.0, np.array([0.4, 0.8, 0]), np.array([[0.4, 0.7]]))      # hit at the start
+    wall = np.array([[0.5, 0.31], [0.55, 0.31], [0.6, 0.31]])              # below the way
+    p = np.array([0.62, 0.5, 0])                                            # 0.22 from the goal
+    assert sup.update(1.0, p, wall) == ("go_to_goal", GO)
+
+
+def test_goal_in_sight_needs_a_free_way_progress_and_range() -> None:
+    sup = make()
+    sup.sight = 0.3
+    sup.update(0.0, np.array([0.4, 0.8, 0]), np.array([[0.4, 0.7]]))
+    p = np.array([0.62, 0.5, 0])
+    on_the_way = np.array([[0.5, 0.45]])                                    # in the corridor
+    assert sup.update(1.0, p, on_the_way)[0] == "wall_follow"
+    far = np.array([0.75, 0.55, 0])                                         # 0.38 from the goal
+    assert sup.update(1.2, far, NONE)[0] == "wall_follow"
+    # in sight but not closer than the hit point by the margin: keep following
+    sup2 = make()
+    sup2.sight = 0.3
+    sup2.update(0.0, np.array([0.4, 0.62, 0]), np.array([[0.4, 0.55]]))     # hit 0.22 away
+    assert sup2.update(1.0, np.array([0.6, 0.45, 0]), NONE)[0] == "wall_follow"
+    # off (the default): only the m-line rule
+    sup3 = make()
+    sup3.update(0.0, np.array([0.4, 0.8, 0]), np.array([[0.4, 0.7]]))
+    assert sup3.update(1.0, p, NONE)[0] == "wall_follow"
+
+
+def test_goal_sight_range_must_be_nonnegative() -> None:
+    with pytest.raises(ConfigError, match="goal_sight_range"):
+        Bug2(Zumo(), goal_sight_range=-0.1)

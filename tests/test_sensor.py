@@ -107,3 +107,28 @@ def test_stall_rule() -> None:
     # a detour away from the goal is movement, not a stall
     detour = [np.array([0.4 + 0.02 * k, 0.8 + 0.01 * k, 0.0]) for k in range(21)]
     assert not scen.stalled(t, detour)
+
+
+def test_scenario_metrics_heading_change_and_sign_changes() -> None:
+    """A loop in place shows as a heading change over 2 pi; chatter as sign changes per s."""
+    import pandas as pd
+
+    from conftest import compose_cfg
+    from mpclab.experiment import build_run
+
+    scen = build_run(compose_cfg(["+experiment=zumo_potential", "recorder=none"])).scenario
+    n = 11                                        # t = 0 .. 2 s, the last row the final state
+    steps = pd.DataFrame({
+        "t": 0.2 * np.arange(n),
+        "x": np.full(n, 0.4), "y": np.linspace(0.8, 0.7, n),
+        "theta": np.linspace(0.0, -7.0, n),       # more than a full turn clockwise
+        "u1": [5, -5, 5, -5, 0, 5, 5, 5, 5, 5, np.nan],   # 4 flips, the zero skipped
+        "u2": [3] * (n - 1) + [np.nan],
+    })
+    m = scen.metrics(steps)
+    assert m["heading_change_rad"] == pytest.approx(-7.0)
+    assert m["max_heading_change_rad"] == pytest.approx(7.0)
+    assert m["max_heading_change_rad"] > 2 * np.pi
+    assert m["u1_sign_changes_per_s"] == pytest.approx(4 / 2.0)
+    assert m["u2_sign_changes_per_s"] == 0.0
+    assert m["path_length_m"] == pytest.approx(0.1)

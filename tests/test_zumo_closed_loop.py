@@ -1,6 +1,9 @@
-"""Study B's closed-loop outcomes (Figs. 4-8) and BUG2 on random layouts."""
+"""Study B's closed-loop outcomes (Figs. 4-8), issue 12's acceptance of the main command and
+BUG2 on random layouts."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -30,10 +33,18 @@ def test_study_b_outcomes(run_cfg, experiment, scenario, arrives, status) -> Non
     assert s["solver_failures"] == 0 or not arrives
 
 
-def test_bug2_writes_its_mode_and_switches(run_cfg) -> None:
+def test_main_command_is_converged_smooth_and_purposeful(run_cfg) -> None:
+    """Issue 12's acceptance for `+experiment=zumo_bug2` (zumo_dead_end), all but the rtf:
+    measured (IPOPT + dU) 10.4 s, converged 1.0, u1 0.10 sign changes/s, heading -4.8 rad,
+    clearance 0.056 m; before (3 capped SQP steps): 14.0 s, 0.93/s, -11.24 rad."""
     res, _ = run_cfg(["+experiment=zumo_bug2"])
-    modes = set(res.steps["mode"].dropna()) - {""}
-    assert modes == {"go_to_goal", "wall_follow"}
+    s = res.summary
+    assert s["status"] == "arrived" and s["arrival_time_s"] <= 11.0, s
+    assert s["converged_fraction"] >= 0.95 and s["solver_failures"] == 0, s
+    assert s["u1_sign_changes_per_s"] <= 0.3, s
+    assert s["max_heading_change_rad"] < 2 * math.pi, s     # no loop in place
+    assert s["min_clearance_m"] > 0.01, s
+    assert set(res.steps["mode"].dropna()) - {""} == {"go_to_goal", "wall_follow"}
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -47,15 +58,12 @@ def test_bug2_on_random_layouts(run_cfg, seed) -> None:
     assert np.isfinite(s["min_clearance_m"]) and s["min_clearance_m"] > 0
 
 
-@pytest.mark.parametrize(
-    "backend",
-    [
-        ["controller=casadi"],                                  # IPOPT to convergence
-        ["controller.sqp_iterations=1", "controller.collision_distance=0.06"],  # hard constraint
-    ],
-)
-def test_bug2_dead_end_on_other_backends(run_cfg, backend) -> None:
-    res, _ = run_cfg(["+experiment=zumo_bug2", *backend])
+def test_bug2_dead_end_on_one_sqp_step_with_the_hard_constraint(run_cfg) -> None:
+    """The truncated option still arrives, honestly labelled (measured 13.4 s, clearance
+    0.046 m, every step truncated)."""
+    res, _ = run_cfg(["+experiment=zumo_bug2", "controller=casadi_rti",
+                      "controller.sqp_iterations=1", "controller.collision_distance=0.06"])
     s = res.summary
     assert s["status"] == "arrived" and s["solver_failures"] == 0, s
-    assert s["min_clearance_m"] > 0.01   # measured 0.065 and 0.065
+    assert s["solves_truncated"] > 0 and s["converged_fraction"] < 1.0, s
+    assert s["min_clearance_m"] > 0.01

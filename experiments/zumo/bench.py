@@ -5,7 +5,11 @@
 Writes one run record per pair under ``--out``, copies each summary.json to
 ``experiments/zumo/results/``, draws the study's figures (path, predicted horizons,
 obstacles, m-line, BUG2 modes) into ``experiments/zumo/figures/`` and prints the outcomes
-table (markdown) that experiments/zumo/README.md shows.
+table (markdown) that experiments/zumo/README.md shows. Besides every experiment on every
+scenario: BUG2 on the untuned layouts (tests/test_zumo_layouts.py) and on random walls, and
+two variants of the main command, labelled: the truncated 3-step SQP backend it used to run
+on (``rti3``), and that with the objective and supervisor it had then (``rti3_old``: no dU,
+no goal-in-sight rule).
 """
 
 from __future__ import annotations
@@ -26,28 +30,40 @@ from mpclab.registry import register_all  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 
+LAYOUTS = ("zumo_long_wall", "zumo_l_wall", "zumo_cup", "zumo_narrow_gap", "zumo_wide_gap",
+           "zumo_goal_near_wall")
+RTI3 = ["controller=casadi_rti", "controller.sqp_iterations=3"]
+OLD = ["objective.terms.dU.weights.u1=0", "objective.terms.dU.weights.u2=0",
+       "supervisor.goal_sight_range=0"]
+
+#: (experiment, scenario, seed, label, extra overrides)
 RUNS = [
-    (exp, scen, seed)
+    (exp, scen, 0, "", [])
     for exp in ("zumo_potential", "zumo_right_hand", "zumo_bug2")
     for scen in ("zumo_one_obstacle", "zumo_wall", "zumo_dead_end")
-    for seed in (0,)
-] + [("zumo_bug2", "zumo_random", s) for s in (0, 1, 2, 3, 4, 5)] + [
-    ("zumo_right_hand", "zumo_random", s) for s in (0, 1, 2)
-] + [("car_casadi", None, 0)]
+] + [
+    ("zumo_bug2", "zumo_dead_end", 0, "rti3", RTI3),
+    ("zumo_bug2", "zumo_dead_end", 0, "rti3_old", RTI3 + OLD),
+] + [("zumo_bug2", scen, 0, "", []) for scen in LAYOUTS] + [
+    ("zumo_bug2", "zumo_random", s, "", []) for s in (0, 1, 2, 3, 4, 5)
+] + [("zumo_right_hand", "zumo_random", s, "", []) for s in (0, 1, 2)] + [
+    ("car_casadi", None, 0, "", [])
+]
 
-COLUMNS = ("status", "arrival_time_s", "min_clearance_m", "compute_median_ms",
-           "compute_p95_ms", "rtf", "solver_failures", "n_steps")
+COLUMNS = ("status", "arrival_time_s", "converged_fraction", "u1_sign_changes_per_s",
+           "max_heading_change_rad", "min_clearance_m", "compute_median_ms", "rtf",
+           "solver_failures", "n_steps")
 
 
-def compose_run(exp: str, scen: str | None, seed: int) -> object:
+def compose_run(exp: str, scen: str | None, seed: int, extra: list[str]) -> object:
     over = [f"+experiment={exp}", "recorder=none", "progress=false", "figures.enabled=false",
-            f"seed={seed}"]
+            f"seed={seed}", *extra]
     if scen is not None:
         over.append(f"scenario={scen}")
     return compose(over)
 
 
-def draw(result: object, run: object, path: Path) -> None:
+def draw(result: object, run: object, path: Path, label: str = "") -> None:
     """Path (red: go to goal / no supervisor, blue: wall-follow), horizons, world, m-line."""
     steps, hz, scen = result.steps, result.horizons, run.scenario
     fig, ax = plt.subplots(figsize=(5.2, 5.2))
@@ -67,7 +83,8 @@ def draw(result: object, run: object, path: Path) -> None:
     ax.plot(scen.goal[0], scen.goal[1], "o", color="tab:blue", ms=8, label="goal")
     s = result.summary
     when = f"arrived {s['arrival_time_s']:.1f} s" if s["arrived"] else s["status"]
-    ax.set_title(f"{s['experiment']} / {scen.name} (seed {s['seed']}): {when}", fontsize=9)
+    ax.set_title(f"{s['experiment']}{label} / {scen.name} (seed {s['seed']}): {when}",
+                 fontsize=9)
     ax.set_aspect("equal")
     ax.legend(loc="lower right", fontsize=7)
     fig.tight_layout()
@@ -84,22 +101,23 @@ def main() -> None:
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "figures").mkdir(exist_ok=True)
     rows = []
-    for exp, scen, seed in RUNS:
-        cfg = compose_run(exp, scen, seed)
-        tag = f"{exp}__{scen or 'car_to_origin'}__{seed}"
+    for exp, scen, seed, label, extra in RUNS:
+        cfg = compose_run(exp, scen, seed, extra)
+        tag = f"{exp}__{scen or 'car_to_origin'}__{seed}" + (f"__{label}" if label else "")
         res = run_experiment(cfg, out / tag)
         shutil.copy(out / tag / "summary.json", HERE / "results" / f"{tag}.json")
         if scen is not None:
             run = build_run(cfg)  # the same objects (and random layout) as the run
             run.supervisor.reset(run.scenario.x0, run.scenario.goal)
-            draw(res, run, HERE / "figures" / f"{tag}.png")
-        rows.append((exp, res.summary["scenario"], seed, res.summary))
+            draw(res, run, HERE / "figures" / f"{tag}.png", f" ({label})" if label else "")
+        name = exp + (f" ({label})" if label else "")
+        rows.append((name, res.summary["scenario"], seed, res.summary))
         print(tag, json.dumps({k: res.summary.get(k) for k in COLUMNS}), file=sys.stderr)
     print("| experiment | scenario | seed | " + " | ".join(COLUMNS) + " |")
     print("|" + "---|" * (3 + len(COLUMNS)))
-    for exp, scen, seed, s in rows:
+    for name, scen, seed, s in rows:
         cells = [_fmt(s.get(k)) for k in COLUMNS]
-        print(f"| {exp} | {scen} | {seed} | " + " | ".join(cells) + " |")
+        print(f"| {name} | {scen} | {seed} | " + " | ".join(cells) + " |")
 
 
 def _fmt(v: object) -> str:

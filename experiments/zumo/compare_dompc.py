@@ -10,9 +10,10 @@ same wheel-speed bounds and the same detected points. States are replayed from o
 closed-loop run of the CasADi backend; at every state each controller makes one step, the
 order alternating, each warm-started from its own previous solution. The table gives the
 median and p95 of the per-step wall time and their ratio. A third controller, interleaved
-with the two, is mpclab's backend as ``zumo_bug2`` configures it (``--backend``: 3 SQP steps
-per sample on the single-shooting form of the same NLP, qpOASES): the same objective, bounds
-and horizon, but not solved to convergence. do-mpc is an optional dependency: nothing in
+with the two, is set by ``--backend`` (default: 3 SQP steps per sample on the
+single-shooting form of the same NLP, qpOASES, the truncated real-time iteration
+``zumo_bug2`` used before issue 12): the same objective, bounds and horizon, but not solved to
+convergence. do-mpc is an optional dependency: nothing in
 mpclab or its tests imports this file.
 """
 
@@ -84,7 +85,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--backend", nargs="*",
                     default=["controller=casadi_rti", "controller.sqp_iterations=3"],
-                    help="overrides of the third controller (zumo_bug2's backend)")
+                    help="overrides of the third controller (default: 3-step SQP RTI)")
     args = ap.parse_args()
     register_all()
     over = [f"+experiment={args.experiment}", f"scenario={args.scenario}", "recorder=none",

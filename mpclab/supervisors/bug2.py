@@ -4,7 +4,11 @@ The m-line joins the start and the goal. In ``go_to_goal`` the robot uses the go
 terms until a detected point blocks the way (it lies in a corridor toward the goal, closer
 than ``block_range``); then ``wall_follow`` (the right-hand-rule terms), remembering the hit
 point. It leaves ``wall_follow`` when it is back on the m-line (within ``mline_tolerance``,
-or crossing it between two steps) closer to the goal than the hit point by ``leave_margin``.
+or crossing it between two steps) closer to the goal than the hit point by ``leave_margin``,
+or (ours, ``goal_sight_range > 0``) when the goal is that near, closer than the hit point by
+``leave_margin`` and no detected point lies in the corridor to it: a goal in sight beside a
+wall is reached without following the wall on to the m-line. Either rule keeps BUG2's
+progress argument: every leave point is closer to the goal than the hit point before it.
 Which terms each mode switches on is configuration, not code.
 """
 
@@ -40,6 +44,7 @@ class Bug2Conf:
     corridor_half_width: float = 0.08
     mline_tolerance: float = 0.05
     leave_margin: float = 0.05
+    goal_sight_range: float = 0.0
 
 
 @component("supervisor", "bug2", Bug2Conf)
@@ -60,6 +65,9 @@ class Bug2(Supervisor):
         Distance from the m-line that counts as being on it [m].
     leave_margin
         How much closer to the goal than the hit point the leave point must be [m].
+    goal_sight_range
+        Also leave off the m-line when the goal is nearer than this and the corridor to it
+        is free of detected points [m] (at most the sensor's range); 0: the m-line only.
     """
 
     def __init__(
@@ -70,6 +78,7 @@ class Bug2(Supervisor):
         corridor_half_width: float = 0.08,
         mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
+        goal_sight_range: float = 0.0,
     ) -> None:
         given = dict(modes or Bug2Conf().modes)
         valid = [m.value for m in Bug2Mode]
@@ -88,6 +97,11 @@ class Bug2(Supervisor):
         self.corridor = float(corridor_half_width)
         self.mline_tol = float(mline_tolerance)
         self.leave_margin = float(leave_margin)
+        if not float(goal_sight_range) >= 0:
+            raise ConfigError(
+                f"supervisor.goal_sight_range must be >= 0 (0: off), got {goal_sight_range}"
+            )
+        self.sight = float(goal_sight_range)
         self._ip = [plant.state_index(s) for s in plant.position]
         self.mode = Bug2Mode.go_to_goal
         #: ((x_start, y_start), (x_goal, y_goal)), set by reset
@@ -118,15 +132,16 @@ class Bug2(Supervisor):
                 self.mode = Bug2Mode.wall_follow
                 self.hit_point = p.copy()
                 self.hits.append((float(t), float(p[0]), float(p[1])))
-        elif self.can_leave(p, self._last):
+        elif self.can_leave(p, self._last) or self.goal_in_sight(p, detections):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
         self._last = p
         return self.mode.value, self.modes[self.mode]
 
     # ------------------------------------------------------------------ geometry
-    def blocked(self, p: FloatArray, detections: FloatArray) -> bool:
-        """Whether a detected point lies in the corridor from ``p`` toward the goal."""
+    def blocked(self, p: FloatArray, detections: FloatArray, reach: float | None = None) -> bool:
+        """Whether a detected point lies in the corridor from ``p`` toward the goal, at most
+        ``reach`` ahead (default ``block_range``; never beyond the goal)."""
         det = np.asarray(detections, dtype=float).reshape(-1, 2)
         to_goal = self._goal - p
         dist = float(np.linalg.norm(to_goal))
@@ -136,8 +151,17 @@ class Bug2(Supervisor):
         rel = det - p
         along = rel @ u
         across = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
-        reach = min(self.block_range, dist)
+        reach = min(self.block_range if reach is None else reach, dist)
         return bool(np.any((along > 0) & (along < reach) & (across < self.corridor)))
+
+    def goal_in_sight(self, p: FloatArray, detections: FloatArray) -> bool:
+        """The goal within ``goal_sight_range``, the corridor to it free, and ``p`` closer to
+        it than the hit point by ``leave_margin`` (off when ``goal_sight_range`` is 0)."""
+        if self.sight <= 0 or self.hit_point is None:
+            return False
+        dist = float(np.linalg.norm(self._goal - p))
+        closer = dist < float(np.linalg.norm(self._goal - self.hit_point)) - self.leave_margin
+        return bool(dist < self.sight and closer and not self.blocked(p, detections, dist))
 
     def mline_side(self, p: FloatArray) -> float:
         """Signed distance from ``p`` to the line through start and goal (left > 0) [m]."""

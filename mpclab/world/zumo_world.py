@@ -202,12 +202,26 @@ class ObstacleScenario(Scenario):
         return bool(moved < rule.max_displacement_m)
 
     def metrics(self, steps: Any) -> dict[str, Any]:
+        """Besides the distances: how the path turned and how often each input changed sign
+        (per simulated second; zero inputs skipped), the marks of a loop or of chatter."""
         xs = steps[list(self.plant.position)].to_numpy(dtype=float)
         g = self.goal[self._ip]
+        heading = steps[self.plant.heading].to_numpy(dtype=float)
+        turned = heading - heading[0]
+        t_end = float(steps["t"].iloc[-1]) if len(steps) else 0.0
+        flips = {}
+        for label in self.plant.inputs:
+            u = steps[label].to_numpy(dtype=float)
+            sign = np.sign(u[np.isfinite(u) & (np.abs(u) > 1e-6)])
+            n = int(np.sum(sign[1:] != sign[:-1]))
+            flips[f"{label}_sign_changes_per_s"] = n / t_end if t_end > 0 else None
         return {
             "n_obstacles": int(len(self.obstacles)),
             "min_goal_distance_m": float(np.min(np.linalg.norm(xs - g, axis=1))),
             "path_length_m": float(np.sum(np.linalg.norm(np.diff(xs, axis=0), axis=1))),
+            "heading_change_rad": float(turned[-1]),
+            "max_heading_change_rad": float(np.max(np.abs(turned))),
+            **flips,
         }
 
     # ---------------------------------------------------------------- figures
