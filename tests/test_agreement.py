@@ -17,8 +17,10 @@ agreement = importlib.util.module_from_spec(_spec)
 sys.modules["agreement"] = agreement  # dataclasses look their module up there
 _spec.loader.exec_module(agreement)
 
-#: a backend that says it converged on the same OCP must be within this of the reference
-CONVERGED_GAP = 1e-4
+#: a backend that says it converged on the same OCP must be within this of the reference in
+#: cost (issue 12's acceptance: 0.1 %) and in its first input (fraction of the input range)
+CONVERGED_GAP = 1e-3
+CONVERGED_DU0 = 1e-2
 
 
 def check_common(df: pd.DataFrame) -> None:
@@ -31,7 +33,7 @@ def check_common(df: pd.DataFrame) -> None:
     assert (df.viol < 1e-5).all(), df[df.viol >= 1e-5]
     same_ocp = df[df.backend.isin(["casadi", "cvxpy"]) & (df.status == "converged")]
     assert (same_ocp.gap < CONVERGED_GAP).all(), same_ocp
-    assert (same_ocp.du0 < 1e-3).all(), same_ocp
+    assert (same_ocp.du0 < CONVERGED_DU0).all(), same_ocp
 
 
 def test_car_backends_against_the_reference() -> None:
