@@ -4,10 +4,13 @@ plan scored by ONE cost function against a tight-tolerance IPOPT reference.
     uv run python experiments/agreement/agreement.py                  # car and bicycle
     uv run python experiments/agreement/agreement.py --case car
     uv run python experiments/agreement/agreement.py --case bicycle --dt 0.05
+    uv run python experiments/agreement/agreement.py --warm           # in each own closed loop
 
 For each case a closed loop gives a few plausible states (with the scenario's target at that
 time). At each state every backend is reset (cold start: no previous plan, previous input 0)
-and called once through ``controller.step``, as the runner calls it. Its input sequence
+and called once through ``controller.step``, as the runner calls it. With ``--warm`` each
+backend instead runs its own closed loop (warm-started from its previous plan, as in a run)
+and is scored at its own states at those steps. Its input sequence
 ``u_pred`` is then rolled out through the plant's own nonlinear step from the state, and the
 objective is evaluated on that rollout in CasADi (``true_cost``): the backend's own
 ``cost`` (on its own prediction model) is not used to compare. The reference solves the same
@@ -203,27 +206,35 @@ def sample_states(case: Case, scenario: str, dt: float,
 
 
 def compare(case: Case, dt: float | None = None, samples: dict[str, list[int]] | None = None,
-            backends: list[str] | None = None) -> pd.DataFrame:
+            backends: list[str] | None = None, warm: bool = False) -> pd.DataFrame:
     """One row per (scenario, state, backend): the measures in the module docstring.
 
-    ``samples`` (scenario -> closed-loop steps) and ``backends`` restrict the case.
+    ``samples`` (scenario -> closed-loop steps) and ``backends`` restrict the case. ``warm``:
+    each backend runs its own closed loop (warm-started from its previous plan, as in a
+    run) and is scored at its own states at those steps; otherwise every backend is reset
+    and solves cold at the states of one sampling closed loop.
     """
     dt = case.dt if dt is None else dt
-    rows = []
+    rows: list[dict[str, Any]] = []
     samples = case.samples if samples is None else samples
     for scenario in samples:
         runs = {b: build_run(compose(_fill(o, scenario, dt)))
                 for b, o in case.backends.items() if backends is None or b in backends}
-        first = next(iter(runs.values()))
         ctrls = {b: r.controller for b, r in runs.items()}
         T = {c.horizon for c in ctrls.values()}
         dts = {c.dt for c in ctrls.values()}
         if len(T) != 1 or len(dts) != 1:
             raise ValueError(f"backends disagree on horizon {T} or dt {dts}: not the same OCP")
         ref_cfg = compose(_fill(case.backends["casadi"], scenario, dt))
+        first = next(iter(runs.values()))
         scorer = Scorer(first.plant, build(ref_cfg.objective, "objective"), T.pop(), dts.pop(),
                         dict(ref_cfg.controller.get("terminal_constraint") or {}))
         scen = first.scenario
+        score = _Scoring(scorer, scenario, bool(case.held))
+        if warm:
+            for b, run in runs.items():
+                rows += _own_loop(score, b, run, scorer, samples[scenario])
+            continue
         for t, x in sample_states(case, scenario, dt, samples[scenario]):
             ctx = StepContext(goal=scen.goal, target=scen.target(t, scorer.T, scorer.dt))
             u_prev = first.plant.clip_input(np.zeros(first.plant.nu))
@@ -231,33 +242,68 @@ def compare(case: Case, dt: float | None = None, samples: dict[str, list[int]] |
             for b, c in ctrls.items():
                 c.reset(x)
                 plans[b] = c.step(t, x, ctx)
-            guesses = {b: s.u_pred for b, s in plans.items() if s.ok}
-            target = ctx.target
-            ref = scorer.reference(x, target, u_prev, guesses)
-            ref_held = (scorer.reference(x, target, u_prev, guesses, held=True)
-                        if case.held else None)
-            span = first.plant.u_ub - first.plant.u_lb
-            span = np.where(np.isfinite(span), span, 1.0)
-            rows.append({"scenario": scenario, "t": t, "backend": "reference",
-                         "status": "converged", "true_cost": ref["cost"], "gap": 0.0,
-                         "du0": 0.0, "viol": ref["viol"], "ref_start": ref["start"]})
-            if ref_held is not None:
-                rows.append({"scenario": scenario, "t": t, "backend": "reference_held",
-                             "status": "converged", "true_cost": ref_held["cost"],
-                             "gap": (ref_held["cost"] - ref["cost"]) / ref["cost"],
-                             "gap_held": 0.0,
-                             "du0": _du0(ref_held["u_pred"][0], ref["u_pred"][0], span),
-                             "viol": ref_held["viol"], "ref_start": ref_held["start"]})
-            for b, s in plans.items():
-                J, viol = scorer.true_cost(x, s.u_pred, target, u_prev)
-                row = {"scenario": scenario, "t": t, "backend": b, "status": str(s.status),
-                       "true_cost": J, "gap": (J - ref["cost"]) / ref["cost"],
-                       "du0": _du0(s.u_pred[0], ref["u_pred"][0], span), "viol": viol,
-                       "pred_err": (s.cost - J) / J, "iterations": s.iterations}
-                if ref_held is not None:
-                    row["gap_held"] = (J - ref_held["cost"]) / ref_held["cost"]
-                rows.append(row)
+            rows += score(t, x, ctx.target, u_prev, plans, with_references=True)
     return pd.DataFrame(rows)
+
+
+def _own_loop(score: _Scoring, name: str, run: Any, scorer: Scorer,
+              ks: list[int]) -> list[dict[str, Any]]:
+    """A backend's own closed loop; its plan scored at steps ``ks`` (at its own states)."""
+    c, scen, plant = run.controller, run.scenario, run.plant
+    x = scen.x0.copy()
+    c.reset(x)
+    rows = []
+    for k in range(max(ks) + 1):
+        t = k * scorer.dt
+        ctx = StepContext(goal=scen.goal, target=scen.target(t, scorer.T, scorer.dt))
+        u_prev = c.previous_input.copy()
+        step = c.step(t, x, ctx)
+        if k in ks:
+            rows += score(t, x, ctx.target, u_prev, {name: step}, with_references=False)
+        x = plant.step(x, step.u, scorer.dt)
+        if scen.arrived(x):
+            break
+    return rows
+
+
+class _Scoring:
+    """Rows for one state: the references (optional) and each backend's plan against them."""
+
+    def __init__(self, scorer: Scorer, scenario: str, held: bool) -> None:
+        self.scorer, self.scenario, self.held = scorer, scenario, held
+        p = scorer.plant
+        span = p.u_ub - p.u_lb
+        self.span = np.where(np.isfinite(span), span, 1.0)
+
+    def __call__(self, t: float, x: np.ndarray, target: np.ndarray, u_prev: np.ndarray,
+                 plans: dict[str, Any], with_references: bool) -> list[dict[str, Any]]:
+        sc, span = self.scorer, self.span
+        guesses = {b: s.u_pred for b, s in plans.items() if s.ok}
+        ref = sc.reference(x, target, u_prev, guesses)
+        ref_held = sc.reference(x, target, u_prev, guesses, held=True) if self.held else None
+        at = {"scenario": self.scenario, "t": t}
+        rows = []
+        if with_references:
+            rows.append(at | {"backend": "reference", "status": "converged",
+                              "true_cost": ref["cost"], "gap": 0.0, "du0": 0.0,
+                              "viol": ref["viol"], "ref_start": ref["start"]})
+            if ref_held is not None:
+                rows.append(at | {"backend": "reference_held", "status": "converged",
+                                  "true_cost": ref_held["cost"],
+                                  "gap": (ref_held["cost"] - ref["cost"]) / ref["cost"],
+                                  "gap_held": 0.0,
+                                  "du0": _du0(ref_held["u_pred"][0], ref["u_pred"][0], span),
+                                  "viol": ref_held["viol"], "ref_start": ref_held["start"]})
+        for b, s in plans.items():
+            J, viol = sc.true_cost(x, s.u_pred, target, u_prev)
+            row = at | {"backend": b, "status": str(s.status), "true_cost": J,
+                        "gap": (J - ref["cost"]) / ref["cost"],
+                        "du0": _du0(s.u_pred[0], ref["u_pred"][0], span), "viol": viol,
+                        "pred_err": (s.cost - J) / J, "iterations": s.iterations}
+            if ref_held is not None:
+                row["gap_held"] = (J - ref_held["cost"]) / ref_held["cost"]
+            rows.append(row)
+        return rows
 
 
 def _du0(u: np.ndarray, u_ref: np.ndarray, span: np.ndarray) -> float:
@@ -278,7 +324,8 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
     if "pred_err" in df:
         out["pred_err_median"] = g["pred_err"].median()
     out["statuses"] = g["status"].agg(_counts)
-    out["best_start"] = g["ref_start"].agg(_counts)
+    if "ref_start" in df:
+        out["best_start"] = g["ref_start"].agg(_counts)
     return out
 
 
@@ -291,15 +338,18 @@ def main() -> None:
     ap.add_argument("--case", choices=list(CASES), action="append")
     ap.add_argument("--dt", type=float, default=None, help="sample time (default: the case's)")
     ap.add_argument("--csv", type=Path, default=None, help="write the per-state rows here")
+    ap.add_argument("--warm", action="store_true",
+                    help="each backend in its own closed loop, warm-started (default: cold)")
     args = ap.parse_args()
     pd.set_option("display.width", 200)
     pd.set_option("display.max_columns", 20)
     frames = []
     for name in args.case or list(CASES):
-        df = compare(CASES[name], args.dt)
+        df = compare(CASES[name], args.dt, warm=args.warm)
         df.insert(0, "case", name)
         frames.append(df)
-        print(f"\n## {name}  (dt = {args.dt or CASES[name].dt})\n")
+        mode = "warm, own closed loop" if args.warm else "cold"
+        print(f"\n## {name}  (dt = {args.dt or CASES[name].dt}, {mode})\n")
         cols = [c for c in ("scenario", "t", "backend", "status", "true_cost", "gap",
                             "gap_held", "du0", "viol", "pred_err") if c in df]
         print(df[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
