@@ -26,9 +26,10 @@ and 11 % at dt = 0.05.)
 ``-25.8/V`` 1/s above ``v_min``; with the guard the fastest is at most 64.4 1/s at any speed
 (at 0.33 m/s; :meth:`DynamicBicycle.lateral_eigenvalues`; at rest they are ``+-0.63j``).
 RK4 with sub-step ``h = dt / substeps`` is stable for ``z = lambda h`` in ``[-2.785, 0]``; we
-keep ``|z| <= 2`` (amplification ``|R(z)| <= 0.33``). ``conf/plant/dynamic_bicycle.yaml``
-sets ``substeps: 2``: ``h`` = 25 ms at dt = 0.05 (``|z| <= 1.61`` at every speed; 0.65 at
-1 m/s) and 10 ms at dt = 0.02 (``|z| <= 0.64``). One step (``substeps: 1``) at dt = 0.05
+keep ``|z| <= 2`` (72 % of the limit; ``R(-2) = 0.33``, exact ``exp(-2) = 0.14``).
+``conf/plant/dynamic_bicycle.yaml`` sets ``substeps: 2``: ``h`` = 25 ms at dt = 0.05
+(``|z| <= 1.61`` at every speed; 0.65 at 1 m/s) and 10 ms at dt = 0.02 (``|z| <= 0.64``).
+One step (``substeps: 1``) at dt = 0.05
 leaves the region between 0.22 and 0.46 m/s and has ``|z| > 2`` from 0.14 to 0.65 m/s; at
 dt = 0.02 one step would do (``|z| <= 1.29``), but one count serves both sample times.
 
