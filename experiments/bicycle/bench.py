@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pandas as pd
 
@@ -23,20 +24,22 @@ ROOT = HERE.parent.parent
 from mpclab.controllers.base import StepContext  # noqa: E402
 from mpclab.experiment import build_run, run_experiment  # noqa: E402
 from mpclab.experiment import compose as compose_cfg  # noqa: E402
+from mpclab.instantiate import build  # noqa: E402
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
 MODES = {"switched": "bicycle_scheduled", "interpolated": "bicycle_interpolated",
          "adaptive": "bicycle_adaptive"}
 DTS = (0.02, 0.05)
+QUIET = ("recorder=none", "progress=false", "figures.enabled=false")
 COLUMNS = ["scenario", "mode", "dt", "status", "n_steps", "rms_px", "rms_py", "rms_V",
            "rms_theta", "overshoot_py", "input_jump_max_rel", "switch_jump_max_rel",
            "switch_jump_max_delta", "switch_jump_max_a", "n_switches", "input_bound_excess",
-           "compute_median_ms", "compute_p95_ms"]
+           "compute_median_ms", "compute_p95_ms", "V_min", "V_max", "rk4_z_max"]
 
 
 def overrides(scenario: str, mode: str, dt: float, *extra: str) -> list[str]:
     return [f"+experiment={MODES[mode]}", f"scenario={scenario}", f"controller.dt={dt}",
-            "recorder=none", "progress=false", "figures.enabled=false", *extra]
+            *QUIET, *extra]
 
 
 def run_all(out_root: Path) -> pd.DataFrame:
@@ -47,11 +50,50 @@ def run_all(out_root: Path) -> pd.DataFrame:
                 out = out_root / f"{scenario}_{mode}_{dt}"
                 run_experiment(compose_cfg(overrides(scenario, mode, dt)), out)
                 s = json.loads((out / "summary.json").read_text())
+                s |= speeds(out, dt)
                 rows.append({"scenario": scenario, "mode": mode, "dt": dt,
                              **{k: s.get(k) for k in COLUMNS[3:]}})
                 print(f"{scenario:20s} {mode:12s} {dt:.2f}  {s['status']}  "
                       f"median {s['compute_median_ms']:.3f} ms", flush=True)
     return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def speeds(out: Path, dt: float) -> dict[str, float]:
+    """The speeds a run reached and the largest ``|lambda h|`` of the lateral modes there
+    (RK4 is stable up to 2.785; ``h = dt / substeps``)."""
+    V = pd.read_parquet(out / "steps.parquet")["V"].to_numpy(dtype=float)
+    plant = build(compose_cfg(["plant=dynamic_bicycle"]).plant, "plant")
+    z = max(plant.rk4_z(v, dt) for v in np.linspace(V.min(), V.max(), 50))
+    return {"V_min": float(V.min()), "V_max": float(V.max()), "rk4_z_max": z}
+
+
+def model_accuracy() -> pd.DataFrame:
+    """The controllers' discrete models against the exact zero-order-hold discretization
+    (``expm`` of the continuous linearization, MATLAB's c2d) at the 8 operating points:
+    the largest error in ``[A B]`` relative to its largest entry, for 1, 2 and 4 substeps."""
+    from scipy.linalg import expm
+
+    rows = []
+    for dt in DTS:
+        for sub in (1, 2, 4):
+            plant = build(compose_cfg(["plant=dynamic_bicycle", f"plant.substeps={sub}"]).plant,
+                          "plant")
+            x, u = ca.SX.sym("x", 6), ca.SX.sym("u", 2)
+            f = plant.rhs(x, u)
+            jac = ca.Function("rhs_jac", [x, u], [ca.jacobian(f, x), ca.jacobian(f, u)])
+            err = 0.0
+            for theta in (0.0, np.pi / 2, np.pi, -np.pi / 2):
+                for V in (1.0, 2.0):
+                    xbar, ubar = np.array([0, 0, theta, 0, 0, V]), np.zeros(2)
+                    Ac, Bc = (np.asarray(m) for m in jac(xbar, ubar))
+                    M = np.zeros((8, 8))
+                    M[:6, :6], M[:6, 6:] = Ac, Bc
+                    E = expm(M * dt)[:6]
+                    A, B = plant.jacobians(xbar, ubar, dt)
+                    AB = np.hstack([A, B])
+                    err = max(err, float(np.abs(AB - E).max() / np.abs(E).max()))
+            rows.append({"dt": dt, "substeps": sub, "max_rel_err_AB_vs_zoh": err})
+    return pd.DataFrame(rows)
 
 
 def interleaved(scenario: str, n_steps: int) -> dict[str, float]:
@@ -100,6 +142,30 @@ def interleaved(scenario: str, n_steps: int) -> dict[str, float]:
     return out
 
 
+def substeps_cost(scenario: str, n_steps: int) -> dict[str, float]:
+    """Per-step time of the adaptive mode (it relinearizes the plant's step every call) with
+    1 and 2 RK4 substeps, called alternately on the same states (those of the 2-substep run)."""
+    ctrls = {sub: build_run(compose_cfg(overrides(scenario, "adaptive", 0.02,
+                                                  f"plant.substeps={sub}"))) for sub in (1, 2)}
+    scen, plant = ctrls[2].scenario, ctrls[2].plant
+    times: dict[int, list[float]] = {1: [], 2: []}
+    x = scen.x0.copy()
+    for run in ctrls.values():
+        run.controller.reset(x)
+    H, dt = ctrls[2].controller.horizon, ctrls[2].controller.dt
+    for k in range(n_steps):
+        ctx = StepContext(goal=scen.goal, target=scen.target(k * dt, H, dt))
+        res = {}
+        for sub in ((1, 2) if k % 2 == 0 else (2, 1)):
+            t0 = time.perf_counter()
+            res[sub] = ctrls[sub].controller.step(k * dt, x, ctx)
+            times[sub].append(time.perf_counter() - t0)
+        x = plant.step(x, res[2].u, dt)
+    med = {sub: float(np.median(ts)) * 1e3 for sub, ts in times.items()}
+    return {"scenario": scenario, "steps": n_steps, "adaptive_1_substep_median_ms": med[1],
+            "adaptive_2_substeps_median_ms": med[2], "ratio": med[2] / med[1]}
+
+
 def fmt(df: pd.DataFrame) -> str:
     def cell(v):
         if isinstance(v, float):
@@ -128,10 +194,18 @@ def main() -> None:
         draw_all(out_root, HERE / "figures")
         parts += ["## Every scenario, mode and sample time (from each run's summary.json)", "",
                   fmt(table), ""]
+        acc = model_accuracy()
+        print(acc.to_string(index=False), flush=True)
+        parts += ["## Discrete models against the exact zero-order hold (8 operating points)",
+                  "", fmt(acc), ""]
     timing = pd.DataFrame([interleaved(s, args.steps) for s in SCENARIOS])
     print(timing.T.to_string(), flush=True)
     parts += ["## Per-step time, interleaved in one process (switched mode, 20 ms, horizon 32, "
               "control horizon 1)", "", fmt(timing), ""]
+    cost = pd.DataFrame([substeps_cost(s, min(args.steps, 300)) for s in SCENARIOS])
+    print(cost.to_string(index=False), flush=True)
+    parts += ["## Adaptive mode with 1 and 2 RK4 substeps, interleaved in one process (20 ms)",
+              "", fmt(cost), ""]
     (HERE / "results.md").write_text("\n".join(parts))
 
 
