@@ -58,7 +58,7 @@ def test_problem_is_dpp_and_built_once() -> None:
 
 
 def test_first_step_matches_reference_qp() -> None:
-    car, ctrl = make()
+    car, ctrl = make(sl="one_pass")
     ctrl.reset(X0)
     res = ctrl.step(0.0, X0, ctx())
     assert res.ok and not res.fallback
@@ -70,7 +70,7 @@ def test_first_step_matches_reference_qp() -> None:
 
 
 def test_second_step_linearizes_about_the_shifted_plan() -> None:
-    car, ctrl = make()
+    car, ctrl = make(sl="one_pass")
     ctrl.reset(X0)
     first = ctrl.step(0.0, X0, ctx())
     x1 = car.step(X0, first.u, 0.1)
@@ -86,17 +86,19 @@ def test_second_step_linearizes_about_the_shifted_plan() -> None:
     assert second.cost == pytest.approx(cost_ref, rel=1e-6)
 
 
-def test_osqp_and_clarabel_agree() -> None:
-    _, c1 = make(solver="CLARABEL")
-    _, c2 = make(solver="OSQP", solver_options={"eps_abs": 1e-9, "eps_rel": 1e-9})
+@pytest.mark.parametrize("sl", ["one_pass", "converge"])
+def test_osqp_and_clarabel_agree(sl: str) -> None:
+    _, c1 = make(solver="CLARABEL", sl=sl)
+    _, c2 = make(solver="OSQP", sl=sl, solver_options={"eps_abs": 1e-9, "eps_rel": 1e-9})
     r1, r2 = c1.step(0.0, X0, ctx()), c2.step(0.0, X0, ctx())
     np.testing.assert_allclose(r1.u, r2.u, atol=1e-4)
 
 
-def test_direct_path_equals_problem_solve() -> None:
+@pytest.mark.parametrize("sl", ["one_pass", "converge"])
+def test_direct_path_equals_problem_solve(sl: str) -> None:
     """The compiled-data path and ``Problem.solve`` give the same plan and cost."""
-    _, direct = make()
-    _, problem = make(solve_via="problem")
+    _, direct = make(sl=sl)
+    _, problem = make(solve_via="problem", sl=sl)
     assert direct.direct is not None and problem.direct is None
     car = direct.plant
     x = X0
