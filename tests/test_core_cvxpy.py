@@ -228,3 +228,39 @@ def test_unknown_terminal_label_is_named() -> None:
     obj = Objective({"t": QuadraticTracking({"px": 1.0})})
     with pytest.raises(ConfigError, match="terminal_constraint: unknown state label 'vel'"):
         CvxpyMPC(car, obj, terminal_constraint={"vel": 0.0})
+
+
+def test_converge_needs_every_term_in_casadi_too() -> None:
+    class OnlyCvxpy(Term):
+        def cvxpy_cost(self, X, U, ctx):
+            return cp.sum_squares(U)
+
+    car = KinematicCar()
+    with pytest.raises(ConfigError, match=r"term 'effort' \(OnlyCvxpy\).*casadi backend"):
+        CvxpyMPC(car, Objective({"effort": OnlyCvxpy()}))
+    CvxpyMPC(car, Objective({"effort": OnlyCvxpy()}), sl="one_pass")  # no true cost needed
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"sl": "converged"}, r"controller.sl: unknown choice 'converged'; valid: converge, one_pass"),
+    ({"hessian": "bfgs"}, r"controller.hessian: unknown choice 'bfgs'; valid: exact"),
+    ({"max_iterations": 0}, r"controller.max_iterations must be >= 1, got 0"),
+    ({"tol": 0.0}, r"controller.tol must be > 0, got 0.0"),
+    ({"trust_radius": -1}, r"controller.trust_radius must be in \(0, 1000\], got -1"),
+    ({"initial_input": {"accel": 1.0}}, r"initial_input: unknown input label 'accel'"),
+])
+def test_bad_options_are_named(options: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        make(**options)
+
+
+def test_converged_plan_is_the_rollout_and_a_cap_truncates() -> None:
+    car, ctrl = make(initial_input={"a": 1.0})
+    res = ctrl.step(0.0, X0, ctx())
+    assert res.status == "converged" and res.iterations > 2 and res.info["qp_iterations"] > 0
+    np.testing.assert_allclose(res.x_pred, car.rollout(X0, res.u_pred, 0.1), atol=1e-9)
+    for cap in (1, 2):
+        _, capped = make(initial_input={"a": 1.0}, max_iterations=cap)
+        short = capped.step(0.0, X0, ctx())
+        assert short.status == "truncated" and short.iterations == cap and not short.fallback
+        assert short.cost > res.cost
