@@ -10,8 +10,9 @@ merit of its rollout (the objective's CasADi form plus a penalty on constraint v
 by at least a tenth of what the QP predicted; the radius grows after good steps that reach it
 and shrinks after poor ones. The iteration has ``converged`` when a step inside the trust
 region is at most ``tol`` or predicts a relative decrease of at most ``tol`` (and, with the
-exact Hessian, no direction of negative curvature lowers the cost: a saddle point is left);
-at ``max_iterations`` it is ``truncated``.
+exact Hessian, no direction of negative curvature lowers the cost: a saddle point is left),
+provided that QP itself converged (else ``truncated``); at ``max_iterations`` it is
+``truncated``.
 """
 
 from __future__ import annotations
@@ -224,8 +225,9 @@ class TrustRegionSL:
             ):
                 best = new if actual >= 0 else bar
                 escape = self.escape(best, bar, x, target, u_prev, radius)
-                if escape is None:
-                    return Outcome(best, SolveStatus.converged, raw, it, qp_iters, radius)
+                if escape is None:  # converged, if the QP that says so converged itself
+                    status = SolveStatus(sol.status)
+                    return Outcome(best, status, raw, it, qp_iters, radius)
                 bar = escape
                 continue
             rho = actual / predicted if predicted > 0 else -np.inf
