@@ -191,7 +191,7 @@ class CvxpyMPC(Controller):
         self.U = U = cp.Variable((nu, T), name="U")
         self.p_x0 = cp.Parameter(nx, name="x0")
         # the whole LTV model in one parameter, columns [A_0..A_T-1 | B_0..B_T-1 | c_0..c_T-1]:
-        # one value update per step instead of 2T+1 (each update is validated by CVXPY)
+        # one value update per linearization instead of 2T+1
         self.p_model = M = cp.Parameter((nx, T * (nx + nu + 1)), name="model")
         a0, c0 = T * nx, T * (nx + nu)
         self.p_target = cp.Parameter((nx, T + 1), name="target")

@@ -37,8 +37,9 @@ ACCEPT = 0.1
 #: and the violation [state units] below which a rollout counts as feasible (a QP solved by
 #: Clarabel keeps its constraints to about 1e-6 in the rollout)
 PENALTY, FEAS_TOL = 1e6, 1e-5
-#: ``exact``: eigenvalues of the Hessian are raised to this fraction of the largest
-CURVATURE = 1e-9
+#: ``exact``: eigenvalues of the Hessian are raised to this fraction of the largest (at
+#: 1e-9, Clarabel stopped with numerical errors near the goal at ``horizon=60``)
+CURVATURE = 1e-6
 
 
 class Hessian(StrEnum):
