@@ -45,7 +45,7 @@ def test_recorder_writes_one_row_per_controller_call(tmp_path: Path) -> None:
     assert len(rows) == len(calls) == 5
     np.testing.assert_array_equal(rows[["x", "y", "theta"]], calls[["px", "py", "theta"]])
     np.testing.assert_array_equal(rows[["a", "phi_dot"]], calls[["a", "phi_dot"]])
-    assert (rows["run_status"] == "timeout").all() and (rows["status"] == "truncated").all()
+    assert (rows["run_status"] == "timeout").all() and (rows["status"] == "converged").all()
 
 
 def test_merge_keeps_every_run_and_reports_runs_without_rows(tmp_path: Path) -> None:

@@ -58,7 +58,7 @@ def test_problem_is_dpp_and_built_once() -> None:
 
 
 def test_first_step_matches_reference_qp() -> None:
-    car, ctrl = make()
+    car, ctrl = make(sl="one_pass")
     ctrl.reset(X0)
     res = ctrl.step(0.0, X0, ctx())
     assert res.ok and not res.fallback
@@ -70,7 +70,7 @@ def test_first_step_matches_reference_qp() -> None:
 
 
 def test_second_step_linearizes_about_the_shifted_plan() -> None:
-    car, ctrl = make()
+    car, ctrl = make(sl="one_pass")
     ctrl.reset(X0)
     first = ctrl.step(0.0, X0, ctx())
     x1 = car.step(X0, first.u, 0.1)
@@ -86,17 +86,19 @@ def test_second_step_linearizes_about_the_shifted_plan() -> None:
     assert second.cost == pytest.approx(cost_ref, rel=1e-6)
 
 
-def test_osqp_and_clarabel_agree() -> None:
-    _, c1 = make(solver="CLARABEL")
-    _, c2 = make(solver="OSQP", solver_options={"eps_abs": 1e-9, "eps_rel": 1e-9})
+@pytest.mark.parametrize("sl", ["one_pass", "converge"])
+def test_osqp_and_clarabel_agree(sl: str) -> None:
+    _, c1 = make(solver="CLARABEL", sl=sl)
+    _, c2 = make(solver="OSQP", sl=sl, solver_options={"eps_abs": 1e-9, "eps_rel": 1e-9})
     r1, r2 = c1.step(0.0, X0, ctx()), c2.step(0.0, X0, ctx())
     np.testing.assert_allclose(r1.u, r2.u, atol=1e-4)
 
 
-def test_direct_path_equals_problem_solve() -> None:
+@pytest.mark.parametrize("sl", ["one_pass", "converge"])
+def test_direct_path_equals_problem_solve(sl: str) -> None:
     """The compiled-data path and ``Problem.solve`` give the same plan and cost."""
-    _, direct = make()
-    _, problem = make(solve_via="problem")
+    _, direct = make(sl=sl)
+    _, problem = make(solve_via="problem", sl=sl)
     assert direct.direct is not None and problem.direct is None
     car = direct.plant
     x = X0
@@ -226,3 +228,39 @@ def test_unknown_terminal_label_is_named() -> None:
     obj = Objective({"t": QuadraticTracking({"px": 1.0})})
     with pytest.raises(ConfigError, match="terminal_constraint: unknown state label 'vel'"):
         CvxpyMPC(car, obj, terminal_constraint={"vel": 0.0})
+
+
+def test_converge_needs_every_term_in_casadi_too() -> None:
+    class OnlyCvxpy(Term):
+        def cvxpy_cost(self, X, U, ctx):
+            return cp.sum_squares(U)
+
+    car = KinematicCar()
+    with pytest.raises(ConfigError, match=r"term 'effort' \(OnlyCvxpy\).*casadi backend"):
+        CvxpyMPC(car, Objective({"effort": OnlyCvxpy()}))
+    CvxpyMPC(car, Objective({"effort": OnlyCvxpy()}), sl="one_pass")  # no true cost needed
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"sl": "converged"}, r"controller.sl: unknown choice 'converged'; valid: converge, one_pass"),
+    ({"hessian": "bfgs"}, r"controller.hessian: unknown choice 'bfgs'; valid: exact"),
+    ({"max_iterations": 0}, r"controller.max_iterations must be >= 1, got 0"),
+    ({"tol": 0.0}, r"controller.tol must be > 0, got 0.0"),
+    ({"trust_radius": -1}, r"controller.trust_radius must be in \(0, 1000\], got -1"),
+    ({"initial_input": {"accel": 1.0}}, r"initial_input: unknown input label 'accel'"),
+])
+def test_bad_options_are_named(options: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        make(**options)
+
+
+def test_converged_plan_is_the_rollout_and_a_cap_truncates() -> None:
+    car, ctrl = make(initial_input={"a": 1.0})
+    res = ctrl.step(0.0, X0, ctx())
+    assert res.status == "converged" and res.iterations > 2 and res.info["qp_iterations"] > 0
+    np.testing.assert_allclose(res.x_pred, car.rollout(X0, res.u_pred, 0.1), atol=1e-9)
+    for cap in (1, 2):
+        _, capped = make(initial_input={"a": 1.0}, max_iterations=cap)
+        short = capped.step(0.0, X0, ctx())
+        assert short.status == "truncated" and short.iterations == cap and not short.fallback
+        assert short.cost > res.cost

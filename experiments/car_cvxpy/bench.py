@@ -1,11 +1,13 @@
-"""Study A benchmark: the built-once DPP backend against rebuilding the QP every step.
+"""Study A benchmark: converged and one-pass successive linearization, built once, against
+rebuilding the QP every step.
 
-Runs ``car_cvxpy`` (the backend as configured: Clarabel on the compiled data, the same
-backend through ``Problem.solve``, and with OSQP) and, in the same process, a reference that
-builds a new CVXPY problem at every step the way the study did (constants instead of
-parameters, one ``Problem`` per stage summed), with the same corrected linearization about the
-shifted previous plan. Whole closed-loop runs alternate (fast, reference, fast, ...) for
-``--rounds`` rounds and the per-step times of each are pooled.
+Runs ``car_cvxpy`` as configured (the linearization iterated to convergence with a trust
+region and the exact Hessian, Clarabel on the compiled data), the same with the Gauss-Newton
+QP, through ``Problem.solve``, in the one-pass mode (``sl=one_pass``: one QP per step,
+truncated), and, in the same process, a reference that builds a new CVXPY problem at every
+step the way the study did (constants instead of parameters, one ``Problem`` per stage summed)
+with the one-pass linearization. Whole closed-loop runs alternate for ``--rounds`` rounds and
+the per-step times of each are pooled.
 
     uv run python experiments/car_cvxpy/bench.py [--rounds 5]
 """
@@ -13,7 +15,9 @@ shifted previous plan. Whole closed-loop runs alternate (fast, reference, fast, 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import time
 
 import cvxpy as cp
 import numpy as np
@@ -30,7 +34,7 @@ class RebuildEveryStep(CvxpyMPC):
     """The study's way: a fresh problem (constants, not parameters) at every step."""
 
     def _solve(self, t: float, x: np.ndarray, ctx: StepContext) -> ControlStep:
-        Xbar, Ubar = self._linearization_points(x)
+        Xbar, Ubar = self._linearization_points(x)  # the one-pass linearization
         A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
         nx, nu, T, p = self.plant.nx, self.plant.nu, self.horizon, self.plant
         X, U = cp.Variable((nx, T + 1)), cp.Variable((nu, T))
@@ -52,63 +56,90 @@ class RebuildEveryStep(CvxpyMPC):
         return ControlStep(  # one linearize-and-solve pass, as the study: truncated
             u=U.value[:, 0].copy(), x_pred=X.value.T.copy(), u_pred=U.value.T.copy(),
             status=SolveStatus.truncated, cost=float(prob.value), solver_status=prob.status,
+            iterations=1,
         )
 
 
-def make_runs(overrides: list[str]):
-    cfg = compose(["+experiment=car_cvxpy", "recorder=none", *overrides])
-    fast = build_run(cfg)
-    ref = build_run(cfg)
-    c = ref.controller
-    ref.controller = RebuildEveryStep(
-        c.plant, c.objective, horizon=c.horizon, dt=c.dt, solver=c.solver,
-        terminal_constraint={"v": 0.0},
+def build(overrides: list[str]):
+    return build_run(compose(["+experiment=car_cvxpy", "recorder=none", *overrides]))
+
+
+def rebuilt() -> object:
+    """The study's program: one pass, a fresh CVXPY problem every step."""
+    run = build(["controller.sl=one_pass"])
+    c = run.controller
+    run.controller = RebuildEveryStep(
+        c.plant, c.objective, horizon=c.horizon, dt=c.dt, solver=c.solver, sl="one_pass",
+        initial_input={"a": float(c._u_guess[0])}, terminal_constraint={"v": 0.0},
     )
-    return fast, ref
+    return run
+
+
+REF = "one pass, rebuilt every step (study's program)"
+
+
+def cpu_timed(run, log: list[float]) -> None:
+    """Record the CPU time of each controller call (this thread's: less inflated than the
+    wall clock on a shared machine, where a step may wait for a core)."""
+    step = run.controller.step
+
+    def timed(*args, **kwargs):
+        t0 = time.thread_time()
+        res = step(*args, **kwargs)
+        log.append(time.thread_time() - t0)
+        return res
+
+    run.controller.step = timed
 
 
 def main(argv: list[str] | None = None) -> pd.DataFrame:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=5)
     args = ap.parse_args(argv)
-    variants = {
-        "built once (DPP), Clarabel": make_runs([]),
-        "built once (DPP), Clarabel via Problem.solve": make_runs(
-            ["controller.solve_via=problem"]
-        ),
-        "built once (DPP), OSQP": make_runs(["controller.solver=OSQP"]),
+    runs = {
+        "converged SL, exact Hessian (default)": build([]),
+        "converged SL, exact Hessian, via Problem.solve": build(["controller.solve_via=problem"]),
+        "converged SL, Gauss-Newton QP (cap 20)": build(["controller.hessian=gauss_newton"]),
+        "one pass (sl=one_pass)": build(["controller.sl=one_pass"]),
+        REF: rebuilt(),
     }
-    ref_name = "rebuilt every step (study), Clarabel"
-    times: dict[str, list[np.ndarray]] = {name: [] for name in [*variants, ref_name]}
+    steps: dict[str, list[pd.DataFrame]] = {name: [] for name in runs}
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    for name, run in runs.items():
+        cpu_timed(run, cpu[name])
     summaries: dict[str, dict] = {}
+    load = os.getloadavg()[0]
     for r in range(args.rounds):
-        for name, (fast, ref) in variants.items():
-            res = simulate(fast)
-            times[name].append(res.steps["solve_time_s"].dropna().to_numpy())
+        for name, run in runs.items():
+            res = simulate(run)
+            steps[name].append(res.steps[res.steps["status"] != "final"])
             summaries[name] = res.summary
-            if name == "built once (DPP), Clarabel":  # interleave: the reference right after
-                res = simulate(ref)
-                times[ref_name].append(res.steps["solve_time_s"].dropna().to_numpy())
-                summaries[ref_name] = res.summary
         print(f"round {r + 1}/{args.rounds} done", file=sys.stderr)
     rows = []
-    ref_median = np.median(np.concatenate(times[ref_name]))
-    for name, chunks in times.items():
-        t = np.concatenate(chunks)
+    ref_median = np.median(pd.concat(steps[REF])["solve_time_s"])
+    for name, chunks in steps.items():
+        calls = pd.concat(chunks)
+        t = calls["solve_time_s"].to_numpy()
         s = summaries[name]
-        sim = s["sim_time_s"]
         rows.append({
             "controller": name,
-            "status": s["status"],
             "arrival_s": s["arrival_time_s"],
             "steps": s["n_steps"],
+            "converged": s["converged_fraction"],
+            "QPs/step (median, max)": f"{np.median(calls['iterations']):g}, "
+                                      f"{calls['iterations'].max():g}",
             "median_ms": 1e3 * np.median(t),
             "p95_ms": 1e3 * np.percentile(t, 95),
-            "compute/sim": float(np.sum(t)) / args.rounds / sim,
+            "cpu_median_ms": 1e3 * np.median(cpu[name]),
+            "ms/QP": 1e3 * t.sum() / calls["iterations"].fillna(1).sum(),
+            "compute/sim": float(np.sum(t)) / args.rounds / s["sim_time_s"],
             "speed-up (median)": ref_median / np.median(t),
+            "speed-up (cpu median)": np.median(cpu[REF]) / np.median(cpu[name]),
         })
     table = pd.DataFrame(rows)
     print(table.to_markdown(index=False, floatfmt=".3g"))
+    print(f"load average (1 min): {load:.2f} before, {os.getloadavg()[0]:.2f} after "
+          f"({os.cpu_count()} cores)")
     return table
 
 

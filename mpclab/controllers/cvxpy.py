@@ -1,11 +1,15 @@
 """CVXPY backend: successive-linearization MPC as one DPP-compliant QP built once.
 
-Per step only parameter values change: the initial state, the LTV model ``(A_k, B_k, c_k)``
-along the previous plan shifted by one step, and the target. The problem is compiled once
-(``Problem.is_dpp()`` is checked at construction), so a solve skips canonicalization. With
-Clarabel, each step by default goes straight from the compiled parameter-to-data map to a
-persistent Clarabel solver (:mod:`mpclab.controllers.cvxpy_direct`), skipping
-``Problem.solve``'s fixed per-call cost; ``solve_via: problem`` uses ``Problem.solve``.
+Per step only parameter values change: the initial state, the LTV model ``(A_k, B_k, c_k)``,
+the input bounds and the target. The problem is compiled once (``Problem.is_dpp()`` is
+checked at construction), so a solve skips canonicalization. With Clarabel, each solve by
+default goes straight from the compiled parameter-to-data map to a persistent Clarabel solver
+(:mod:`mpclab.controllers.cvxpy_direct`); ``solve_via: problem`` uses ``Problem.solve``.
+
+``sl: converge`` (default) iterates the linearization to convergence with a trust region
+(:mod:`mpclab.controllers.cvxpy_sl`); the trust region and the input bounds are one pair of
+parameters, so the QP does not grow. ``sl: one_pass`` is the study's scheme, one QP per step
+about the previous plan shifted, always ``truncated``.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
-from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, SolveVia
+from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, QPSolution, SolveVia
+from mpclab.controllers.cvxpy_sl import MAX_RADIUS, Hessian, Point, TrustRegionSL
 from mpclab.errors import ConfigError
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective, TermContext
@@ -35,10 +40,18 @@ from mpclab.registry import component
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
-
+#: bound given to the QP for an input without one (and no trust region): never active
+_FREE = 1e6
 class CvxpySolver(StrEnum):
     CLARABEL = "CLARABEL"
     OSQP = "OSQP"
+
+
+class SlMode(StrEnum):
+    #: iterate with a trust region until the step or the predicted cost decrease is below tol
+    converge = "converge"
+    #: one linearize-and-solve pass per step (the study's scheme): truncated by design
+    one_pass = "one_pass"
 
 
 class Linearization(StrEnum):
@@ -55,7 +68,12 @@ class CvxpyConf:
     dt: float = 0.1
     solver: CvxpySolver = CvxpySolver.CLARABEL
     warm_start: bool = True
-    iterations: int = 1
+    sl: SlMode = SlMode.converge
+    tol: float = 1e-6
+    max_iterations: int = 20
+    trust_radius: float = 0.5
+    hessian: Hessian = Hessian.exact
+    initial_input: dict[str, float] = field(default_factory=dict)
     linearize_about: Linearization = Linearization.shifted_plan
     terminal_constraint: dict[str, float] = field(default_factory=dict)
     solver_options: dict[str, Any] = field(default_factory=dict)
@@ -69,17 +87,34 @@ class CvxpyMPC(Controller):
     Parameters
     ----------
     plant, objective
-        Injected; every objective term must support CVXPY.
+        Injected; every objective term must support CVXPY (and CasADi, for ``converge``:
+        the true cost of a rollout is evaluated with the terms' CasADi form).
     horizon, dt
         Prediction steps and sample time [s].
     solver
         ``CLARABEL`` (default) or ``OSQP``.
     warm_start
         Passed to the solver (OSQP reuses its factorization and previous solution).
-    iterations
-        Linearize-and-solve passes per step (1: real-time iteration).
+    sl
+        ``converge`` (iterate to ``tol`` or ``max_iterations``) or ``one_pass``.
+    tol
+        ``converge``: stop when a step inside the trust region is at most ``tol`` (inputs in
+        half their ranges, max norm) or predicts a relative cost decrease of at most ``tol``.
+    max_iterations
+        ``converge``: QPs per step at most; a step stopped here is ``truncated``.
+    trust_radius
+        ``converge``: the trust region at the start of each step, in half input ranges.
+    hessian
+        ``converge``: the QP's objective, ``exact`` (a quadratic model of the rollout's true
+        cost in the inputs) or ``gauss_newton`` (the terms' CVXPY form on the linearized
+        states, as ``one_pass``).
+    initial_input
+        ``{input label: value}`` held over the horizon as the first linearization point
+        (others 0). The car at rest with zero steering angle has no first-order steering
+        effect; a forward acceleration gives it one.
     linearize_about
-        ``shifted_plan`` or ``rollout``.
+        ``one_pass``: ``shifted_plan`` or ``rollout`` (``converge`` always linearizes about
+        the rollout, whose true cost it needs).
     terminal_constraint
         ``{state label: value}`` imposed on the last predicted state.
     solver_options
@@ -98,36 +133,71 @@ class CvxpyMPC(Controller):
         dt: float = 0.1,
         solver: CvxpySolver | str = CvxpySolver.CLARABEL,
         warm_start: bool = True,
-        iterations: int = 1,
+        sl: SlMode | str = SlMode.converge,
+        tol: float = 1e-6,
+        max_iterations: int = 20,
+        trust_radius: float = 0.5,
+        hessian: Hessian | str = Hessian.exact,
+        initial_input: Mapping[str, float] | None = None,
         linearize_about: Linearization | str = Linearization.shifted_plan,
         terminal_constraint: Mapping[str, float] | None = None,
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
     ) -> None:
         super().__init__(plant, horizon, dt)
-        self.solver = CvxpySolver(solver).value
+        self.solver = _enum(CvxpySolver, solver, "controller.solver").value
         self.warm_start = bool(warm_start)
-        if int(iterations) < 1:
-            raise ConfigError(f"controller.iterations must be >= 1, got {iterations}")
-        self.iterations = int(iterations)
-        self.linearize_about = Linearization(linearize_about)
+        self.sl = _enum(SlMode, sl, "controller.sl")
+        if int(max_iterations) < 1:
+            raise ConfigError(f"controller.max_iterations must be >= 1, got {max_iterations}")
+        if not float(tol) > 0:
+            raise ConfigError(f"controller.tol must be > 0, got {tol}")
+        if not 0 < float(trust_radius) <= MAX_RADIUS:
+            raise ConfigError(
+                f"controller.trust_radius must be in (0, {MAX_RADIUS:g}], got {trust_radius}"
+            )
+        self.max_iterations, self.tol = int(max_iterations), float(tol)
+        self.trust_radius = float(trust_radius)
+        self.hessian = _enum(Hessian, hessian, "controller.hessian")
+        #: the QP's objective is the terms' CVXPY form (else the exact quadratic model)
+        self._terms_qp = self.sl is SlMode.one_pass or self.hessian is Hessian.gauss_newton
+        self.linearize_about = _enum(Linearization, linearize_about, "controller.linearize_about")
         self.solver_options = dict(solver_options or {})
+        self._u_guess = np.zeros(plant.nu)
+        for label, value in dict(initial_input or {}).items():
+            try:
+                self._u_guess[plant.input_index(label)] = float(value)
+            except ValueError as exc:
+                raise ConfigError(f"controller.initial_input: {exc}") from None
+        self._u_guess = plant.clip_input(self._u_guess)
+        self._u_lo, self._u_hi = np.maximum(plant.u_lb, -_FREE), np.minimum(plant.u_ub, _FREE)
         self.objective = objective
         objective.bind(plant, "cvxpy")
-        self._build(dict(terminal_constraint or {}))
+        if self.sl is SlMode.converge:
+            for term in objective:
+                term.require("casadi")
+        self._terminal = terminal_rows(plant, terminal_constraint)
+        self._build()
         self.qp = CompiledQP(self.problem, [self.X, self.U], self.solver, self.solver_options,
                              self.warm_start, solve_via)
+        self.iteration = None if self.sl is SlMode.one_pass else TrustRegionSL(
+            plant, objective, self.horizon, self.dt, self._terminal, self.hessian, self.tol,
+            self.max_iterations, self.trust_radius, self._u_lo, self._u_hi,
+        )
 
-    def _build(self, terminal: dict[str, float]) -> None:
+    def _build(self) -> None:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
         self.X = X = cp.Variable((nx, T + 1), name="X")
         self.U = U = cp.Variable((nu, T), name="U")
         self.p_x0 = cp.Parameter(nx, name="x0")
         # the whole LTV model in one parameter, columns [A_0..A_T-1 | B_0..B_T-1 | c_0..c_T-1]:
-        # one value update per step instead of 2T+1 (each update is validated by CVXPY)
+        # one value update per linearization instead of 2T+1
         self.p_model = M = cp.Parameter((nx, T * (nx + nu + 1)), name="model")
         a0, c0 = T * nx, T * (nx + nu)
         self.p_target = cp.Parameter((nx, T + 1), name="target")
+        # input bounds, intersected with the trust region around Ubar in `converge`
+        self.p_u_lo = cp.Parameter((nu, T), name="u_lo")
+        self.p_u_hi = cp.Parameter((nu, T), name="u_hi")
         cons = [X[:, 0] == self.p_x0]
         cons += [
             X[:, k + 1]
@@ -136,12 +206,20 @@ class CvxpyMPC(Controller):
             + M[:, c0 + k]
             for k in range(T)
         ]
-        cons += _box(U, self.plant.u_lb, self.plant.u_ub)
+        cons += [U >= self.p_u_lo, U <= self.p_u_hi]
         cons += _box(X[:, 1:], self.plant.x_lb, self.plant.x_ub)
-        cons += [X[i, T] == value for i, value in terminal_rows(self.plant, terminal)]
+        cons += [X[i, T] == value for i, value in self._terminal]
         self.p_u_prev = cp.Parameter(nu, name="u_prev")
-        ctx = TermContext(x0=self.p_x0, target=self.p_target, u_prev=self.p_u_prev)
-        cost = sum(term.cvxpy_cost(X, U, ctx) for term in self.objective)
+        if self._terms_qp:
+            ctx = TermContext(x0=self.p_x0, target=self.p_target, u_prev=self.p_u_prev)
+            cost = sum(term.cvxpy_cost(X, U, ctx) for term in self.objective)
+        else:  # g'u + |L u - L ubar|^2 / 2: the model up to a constant (L'L: clipped Hessian)
+            n = nu * T
+            self.p_grad = cp.Parameter(n, name="grad")
+            self.p_L = cp.Parameter((n, n), name="L")
+            self.p_Lu = cp.Parameter(n, name="L_ubar")
+            u = cp.vec(U, order="F")
+            cost = self.p_grad @ u + 0.5 * cp.sum_squares(self.p_L @ u - self.p_Lu)
         self.problem = cp.Problem(cp.Minimize(cost), cons)
         if not self.problem.is_dpp():
             raise ConfigError(
@@ -164,42 +242,81 @@ class CvxpyMPC(Controller):
         super().reset(x0)
         self.qp.reset()
 
-    def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _guess(self) -> FloatArray:
+        """The first linearization inputs ``(T, nu)``: the previous plan shifted, or
+        ``initial_input`` held."""
         prev = self.previous_plan
         if prev is None:
-            U = np.tile(self.plant.clip_input(np.zeros(self.plant.nu)), (self.horizon, 1))
-            return self.plant.rollout(x, U, self.dt)[:-1], U
-        U = shift(prev.u_pred)
-        if self.linearize_about is Linearization.rollout:
-            return self.plant.rollout(x, U, self.dt)[:-1], U
-        X = shift(prev.x_pred)[:-1].copy()
-        X[0] = x
-        return X, U
+            return np.tile(self._u_guess, (self.horizon, 1))
+        return shift(prev.u_pred)
+
+    def _set_model(self, A: FloatArray, B: FloatArray, c: FloatArray) -> None:
+        nx = self.plant.nx
+        _assign(self.p_model, np.concatenate(
+            [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
+            axis=1,
+        ))
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
+        _assign(self.p_x0, x)
+        _assign(self.p_target, ctx.target.T)
+        _assign(self.p_u_prev, self.previous_input)
+        if self.sl is SlMode.one_pass:
+            return self._one_pass(x)
+        return self._converge(x, ctx)
+
+    # ------------------------------------------------------------------ one pass
+    def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``one_pass``: the states and inputs ``(T, nx)``, ``(T, nu)`` linearized about."""
+        Ubar = self._guess()
+        if self.previous_plan is None or self.linearize_about is Linearization.rollout:
+            return self.plant.rollout(x, Ubar, self.dt)[:-1], Ubar
+        Xbar = shift(self.previous_plan.x_pred)[:-1].copy()
+        Xbar[0] = x
+        return Xbar, Ubar
+
+    def _one_pass(self, x: FloatArray) -> ControlStep:
         Xbar, Ubar = self._linearization_points(x)
-        self.p_x0.value = x
-        self.p_target.value = ctx.target.T
-        self.p_u_prev.value = self.previous_input
-        for _ in range(self.iterations):
-            A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
-            nx = self.plant.nx
-            self.p_model.value = np.concatenate(
-                [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
-                axis=1,
-            )
-            sol = self.qp.solve()
-            if sol.values is None:
-                return self._failed(sol.status, x, sol.raw, sol.message, sol.iterations)
-            Xv, Uv = sol.values
-            Xbar, Ubar = Xv.T[:-1], Uv.T
-        # a fixed number of linearize-and-solve passes: the QP converged, the successive
-        # linearization was not iterated to convergence
+        self._set_model(*self.plant.linearize_trajectory(Xbar, Ubar, self.dt))
+        T = self.horizon
+        _assign(self.p_u_lo, np.tile(self._u_lo[:, None], (1, T)))
+        _assign(self.p_u_hi, np.tile(self._u_hi[:, None], (1, T)))
+        sol = self.qp.solve()
+        if sol.values is None:
+            return self._failed(sol.status, x, sol.raw, sol.message, sol.iterations)
+        Xv, Uv = sol.values
+        # one linearize-and-solve pass: the QP converged, the linearization was not iterated
         return ControlStep(
             u=Uv[:, 0].copy(), x_pred=Xv.T.copy(), u_pred=Uv.T.copy(),
             status=SolveStatus.truncated, cost=sol.objective, solver_status=sol.raw,
-            iterations=sol.iterations,
+            iterations=1, info={"qp_iterations": sol.iterations},
         )
+
+    # ------------------------------------------------------------------ converge
+    def _converge(self, x: FloatArray, ctx: StepContext) -> ControlStep:
+        out = self.iteration.run(x, self._guess(), ctx.target.T, self.previous_input,
+                                 self._trust_region_qp)
+        if out.failure is not None:
+            sol = out.failure
+            return self._failed(sol.status, x, sol.raw, sol.message, out.iterations)
+        pt = out.point
+        return ControlStep(
+            u=pt.U[0].copy(), x_pred=pt.X, u_pred=pt.U.copy(), status=out.status,
+            cost=pt.cost, solver_status=out.raw, iterations=out.iterations,
+            info={"qp_iterations": out.qp_iterations, "trust_radius": out.radius},
+        )
+
+    def _trust_region_qp(self, bar: Point, r: float) -> QPSolution:
+        """The QP linearized about ``bar`` with ``|U - bar.U| <= r`` (in half input ranges)."""
+        _assign(self.p_model, bar.model)
+        if bar.grad is not None:
+            _assign(self.p_grad, bar.grad)
+            _assign(self.p_L, bar.L)
+            _assign(self.p_Lu, bar.L @ bar.U.ravel())
+        scale = self.iteration.scale
+        _assign(self.p_u_lo, np.maximum(self._u_lo, bar.U - r * scale).T)
+        _assign(self.p_u_hi, np.minimum(self._u_hi, bar.U + r * scale).T)
+        return self.qp.solve()
 
 
 def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint]:
@@ -212,3 +329,21 @@ def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint
     if hi:
         cons.append(V[hi, :] <= ub[hi][:, None])
     return cons
+
+
+def _assign(param: cp.Parameter, value: Any) -> None:
+    """Set a parameter's value without CVXPY's per-assignment validation (it projects the
+    value onto the parameter's attributes, of which ours have none: about 0.1 ms each, a
+    dozen times a step); the shape and finiteness are checked here."""
+    value = np.array(value, dtype=float)
+    if value.shape != param.shape or not np.all(np.isfinite(value)):
+        raise ValueError(f"parameter {param.name()}: bad value of shape {value.shape}")
+    param.save_value(value)
+
+
+def _enum(cls: type[StrEnum], value: Any, where: str) -> Any:
+    try:
+        return cls(value.value if isinstance(value, StrEnum) else value)
+    except ValueError:
+        valid = ", ".join(m.value for m in cls)
+        raise ConfigError(f"{where}: unknown choice {value!r}; valid: {valid}") from None
