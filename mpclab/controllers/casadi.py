@@ -22,7 +22,7 @@ robot at rest facing sideways to its goal.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 from typing import Any
@@ -39,7 +39,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
-from mpclab.controllers.casadi_compile import compiled_nlp
+from mpclab.controllers.casadi_compile import DEFAULT_FLAGS, compiled_nlp
 from mpclab.controllers.casadi_ocp import OCP, Shooting, build_ocp
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
@@ -73,6 +73,8 @@ _TRUNCATED = frozenset({
     "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
     "Maximum_WallTime_Exceeded", "Search_Direction_Becomes_Too_Small",
 })
+#: fatrop's numeric return codes (its ``return_status``) for a cap: 1 is MaxIterExceeded
+_FATROP_TRUNCATED = frozenset({"1"})
 #: CasADi's unified return status -> ours (``SOLVER_RET_SUCCESS`` is refined by _TRUNCATED)
 _UNIFIED = {
     "SOLVER_RET_SUCCESS": SolveStatus.converged,
@@ -88,8 +90,8 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
 
     ``stats()`` raises for some plugins when they stop without a status string (sqpmethod
     after a failed QP); that is a failed solve, not a crash. IPOPT's "acceptable" level and
-    an iteration cap count as truncated; fatrop's ``return_status`` is a number, so its
-    ``success`` flag decides.
+    an iteration cap count as truncated; fatrop's ``return_status`` is a number: 0 with its
+    ``success`` flag is converged, 1 its iteration cap (truncated), others failed.
     """
     try:
         stats = fn.stats()
@@ -98,7 +100,7 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
     raw = str(stats.get("return_status", ""))
     iters = stats.get("iter_count")
     iters = int(iters) if iters is not None else None
-    if raw in _TRUNCATED:
+    if raw in _TRUNCATED or raw in _FATROP_TRUNCATED:
         return SolveStatus.truncated, raw, iters
     if stats.get("success"):
         return SolveStatus.converged, raw or "success", iters
@@ -119,6 +121,7 @@ class CasadiConf:
     sqp_iterations: int = 1
     shooting: Shooting = Shooting.multiple
     jit: bool = False
+    jit_flags: list[str] = field(default_factory=lambda: list(DEFAULT_FLAGS))
     collision_distance: float = 0.0
     max_iter: int = 100
     tol: float = 1e-6
@@ -153,6 +156,8 @@ class CasadiMPC(Controller):
     jit
         Compile the NLP's functions to C (cached on disk; uncompiled with a warning if no
         C compiler is found).
+    jit_flags
+        The C compiler's flags for ``jit`` (``-O1``: see experiments/zumo/SOLVERS.md).
     collision_distance
         ``R`` [m] of the hard collision constraint on detected points; 0 turns it off.
     max_iter, tol
@@ -182,6 +187,7 @@ class CasadiMPC(Controller):
         sqp_iterations: int = 1,
         shooting: Shooting | str = Shooting.multiple,
         jit: bool = False,
+        jit_flags: Sequence[str] = DEFAULT_FLAGS,
         collision_distance: float = 0.0,
         max_iter: int = 100,
         tol: float = 1e-6,
@@ -214,6 +220,7 @@ class CasadiMPC(Controller):
                               "(on the single-shooting QP it crashes the process)")
         self.sqp_iterations = int(sqp_iterations)
         self.jit = bool(jit)
+        self.jit_flags = tuple(str(f) for f in jit_flags)
         self.collision_distance = float(collision_distance)
         self.max_iter, self.tol = int(max_iter), float(tol)
         self.warm_start = bool(warm_start)
@@ -244,7 +251,7 @@ class CasadiMPC(Controller):
         self.compiled = False  # whether the NLP functions run compiled
         with c_stdout_silenced():  # qpOASES prints its banner on construction
             fn = ca.nlpsol("mpc", name, self.ocp.nlp, opts)
-            lib = compiled_nlp(fn) if self.jit else None
+            lib = compiled_nlp(fn, self.jit_flags) if self.jit else None
             if lib is not None:
                 fn = ca.nlpsol("mpc", name, str(lib), opts)
                 self.compiled = True
