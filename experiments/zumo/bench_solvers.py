@@ -6,6 +6,8 @@ candidate solver replays those steps in order, warm-starting from its own previo
 as it would in the loop, and the table gives per candidate: the fraction of steps solved to
 convergence, the median and p95 time of ``controller.step`` [ms], mean iterations, and how
 often its first input agrees with a tight-tolerance IPOPT solve of the same step (1e-3).
+Beside the wall time, the CPU time of the solving thread: on a loaded machine the wall time
+includes waits for a core, the CPU time does not.
 Rounds alternate the candidates so that a load change on the machine hits them alike.
 
     uv run python experiments/zumo/bench_solvers.py                      # Zumo BUG2, all
@@ -88,13 +90,14 @@ def build(cfg: Any, run: Any, opts: dict[str, Any]) -> CasadiMPC:
     return CasadiMPC(run.plant, run.controller.objective, **c)
 
 
-def replay(ctrl: CasadiMPC, steps: list[Recorded]) -> list[tuple[float, Any]]:
+def replay(ctrl: CasadiMPC, steps: list[Recorded]) -> list[tuple[float, float, Any]]:
+    """``(wall time, CPU time of this thread, result)`` per step, replayed in order."""
     ctrl.reset(steps[0].x)
     out = []
     for s in steps:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         res = ctrl.step(s.t, s.x, s.ctx)
-        out.append((time.perf_counter() - t0, res))
+        out.append((time.perf_counter() - t0, time.thread_time() - c0, res))
     return out
 
 
@@ -102,7 +105,7 @@ def reference(cfg: Any, run: Any, steps: list[Recorded]) -> list[np.ndarray]:
     """IPOPT at tol 1e-8 on each recorded step, each warm-started like the loop."""
     ref = build(cfg, run, {"solver": "ipopt", "shooting": "multiple", "tol": 1e-8,
                            "max_iter": 500})
-    return [res.u for _, res in replay(ref, steps)]
+    return [res.u for _, _, res in replay(ref, steps)]
 
 
 def main() -> None:
@@ -129,21 +132,24 @@ def main() -> None:
         if time.perf_counter() - t0 > 1:
             print(f"  built {name} in {time.perf_counter() - t0:.1f} s")
     names = list(ctrls)
-    rows: dict[str, list[tuple[float, Any]]] = {n: [] for n in names}
+    rows: dict[str, list[tuple[float, float, Any]]] = {n: [] for n in names}
     for _ in range(a.rounds):
         for name in names:
             rows[name] += replay(ctrls[name], steps)
-    print(f"{'solver':28s} {'converged':>9s} {'median ms':>9s} {'p95 ms':>7s} "
-          f"{'mean iter':>9s} {'agree':>6s}")
+    print(f"| {'solver':26s} | converged | median ms | p95 ms | CPU median ms | CPU p95 ms "
+          f"| mean iter | agree |")
+    print("|---|---|---|---|---|---|---|---|")
     for name in names:
-        times = np.array([t for t, _ in rows[name]]) * 1e3
-        res = [r for _, r in rows[name]]
+        times = np.array([t for t, _, _ in rows[name]]) * 1e3
+        cpu = np.array([c for _, c, _ in rows[name]]) * 1e3
+        res = [r for _, _, r in rows[name]]
         conv = np.mean([r.status is SolveStatus.converged for r in res])
         iters = np.mean([r.iterations or 0 for r in res])
         agree = np.mean([np.abs(r.u - ref[i % len(steps)]).max() < 1e-3
                          for i, r in enumerate(res)])
-        print(f"{name:28s} {conv:9.2f} {np.median(times):9.2f} {np.percentile(times, 95):7.2f} "
-              f"{iters:9.1f} {agree:6.2f}")
+        print(f"| {name:26s} | {conv:9.2f} | {np.median(times):9.2f} | "
+              f"{np.percentile(times, 95):6.2f} | {np.median(cpu):13.2f} | "
+              f"{np.percentile(cpu, 95):10.2f} | {iters:9.1f} | {agree:5.2f} |")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

@@ -242,6 +242,7 @@ class CasadiMPC(Controller):
             terminal_rows(plant, dict(terminal_constraint or {})),
         )
         self.solver_fn = self._make_solver(dict(solver_options or {}))
+        self._bind_buffers()
         self._lam_x: FloatArray | None = None
         self._lam_g: FloatArray | None = None
 
@@ -353,17 +354,16 @@ class CasadiMPC(Controller):
         return w, warm
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
-        w0, warm = self._initial_guess(x)
-        ocp = self.ocp
-        args: dict[str, Any] = {
-            "x0": w0, "p": self._params(x, ctx),
-            "lbx": ocp.lbw, "ubx": ocp.ubw, "lbg": ocp.lbg, "ubg": ocp.ubg,
-        }
+        io = self._io
+        io["x0"][:], warm = self._initial_guess(x)
+        io["p"][:] = self._params(x, ctx)
         if warm and self._lam_g is not None:
-            args["lam_x0"], args["lam_g0"] = self._lam_x, self._lam_g
-        sol = self.solver_fn(**args)
-        status, raw, iters = read_status(self.solver_fn)
-        w = np.asarray(sol["x"], dtype=float).ravel()
+            io["lam_x0"][:], io["lam_g0"][:] = self._lam_x, self._lam_g
+        else:
+            io["lam_x0"][:] = io["lam_g0"][:] = 0.0
+        self._solve_nlp()
+        status, raw, iters = read_status(self._buffer)
+        w = io["x"].copy()
         if status in (SolveStatus.converged, SolveStatus.truncated) and not (
             np.all(np.isfinite(w)) and self._within_bounds(w)
         ):  # an iterate outside its bounds: an SQP step whose QP failed silently
@@ -371,15 +371,38 @@ class CasadiMPC(Controller):
         if status not in (SolveStatus.converged, SolveStatus.truncated):
             self._lam_x = self._lam_g = None
             return self._failed(status, x, raw, iterations=iters)
-        self._lam_x = self._shift_lam_x(np.asarray(sol["lam_x"], dtype=float).ravel())
-        self._lam_g = np.asarray(sol["lam_g"], dtype=float).ravel()
+        ocp = self.ocp
+        self._lam_x = self._shift_lam_x(io["lam_x"])
+        self._lam_g = io["lam_g"].copy()
         U = w[ocp.u_idx]
-        X = w[ocp.x_idx] if ocp.x_idx is not None else (
-            np.asarray(ocp.plan_fn(w, args["p"]), dtype=float).T)
+        X = w[ocp.x_idx] if ocp.x_idx is not None else ocp.plan_fn(w, io["p"]).full().T
         return ControlStep(
-            u=U[0].copy(), x_pred=X, u_pred=U, status=status, cost=float(sol["f"]),
+            u=U[0].copy(), x_pred=X, u_pred=U, status=status, cost=float(io["f"][0]),
             solver_status=raw, iterations=iters,
         )
+
+    def _solve_nlp(self) -> None:
+        """One call of the solver on the arrays of ``_io`` (in place, no conversions)."""
+        self._trigger()
+
+    def _bind_buffers(self) -> None:
+        """NumPy arrays that the solver reads its inputs from and writes its outputs into.
+
+        CasADi's buffer interface: converting the eight inputs and six outputs of a call to
+        and from ``DM`` cost more than a car's solve (measured: experiments/zumo/SOLVERS.md).
+        """
+        fn = self.solver_fn
+        self._buffer, self._trigger = fn.buffer()
+        self._io: dict[str, FloatArray] = {}
+        fixed = {"lbx": self.ocp.lbw, "ubx": self.ocp.ubw, "lbg": self.ocp.lbg,
+                 "ubg": self.ocp.ubg}
+        for i, name in enumerate(fn.name_in()):
+            a = np.array(fixed[name], dtype=float) if name in fixed else np.zeros(fn.nnz_in(i))
+            self._io[name] = a
+            self._buffer.set_arg(i, memoryview(a))
+        for i, name in enumerate(fn.name_out()):
+            self._io[name] = a = np.zeros(fn.nnz_out(i))
+            self._buffer.set_res(i, memoryview(a))
 
     def _within_bounds(self, w: FloatArray, tol: float = 1e-6) -> bool:
         """Whether ``w`` keeps its variable bounds (a QP solved to success always does)."""

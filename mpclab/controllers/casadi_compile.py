@@ -71,8 +71,14 @@ def compiled_nlp(solver: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS) ->
     lib = folder / f"nlp_{key}.so"
     if lib.exists():
         return lib
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, src_name = tempfile.mkstemp(prefix=f".nlp_{key}.", suffix=".c", dir=folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, src_name = tempfile.mkstemp(prefix=f".nlp_{key}.", suffix=".c", dir=folder)
+    except OSError as exc:
+        warnings.warn(f"controller.jit: cannot write the compile cache {folder} ({exc}; set "
+                      "MPCLAB_CACHE); the NLP functions run uncompiled", RuntimeWarning,
+                      stacklevel=2)
+        return None
     with os.fdopen(fd, "w") as f:
         f.write(source)
     tmp_lib = src_name[:-2] + ".so"

