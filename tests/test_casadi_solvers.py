@@ -73,9 +73,12 @@ def test_fatrop_status_success_and_iteration_cap(zumo_setup) -> None:
     x, det, active = STATES[0]
     ok = _mpc(zumo_setup, solver="fatrop").step(0.0, x, _ctx(det, active))
     assert ok.status is SolveStatus.converged and ok.solver_status == "0"
-    capped = _mpc(zumo_setup, solver="fatrop", max_iter=2).step(0.0, x, _ctx(det, active))
-    assert capped.status is SolveStatus.truncated and not capped.fallback
-    assert capped.iterations is not None and capped.iterations <= 3
+    for x, det, active in STATES:  # a cap: truncated, applied, inside the input bounds
+        for cap in (2, 3):
+            res = _mpc(zumo_setup, solver="fatrop", max_iter=cap).step(0.0, x, _ctx(det, active))
+            assert res.status is SolveStatus.truncated and not res.fallback, res.solver_status
+            assert res.iterations is not None and res.iterations <= cap + 1
+            assert np.all(np.abs(res.u_pred) <= 10.0)
 
 
 def test_sqp_iteration_cap_is_truncated_never_converged(zumo_setup) -> None:

@@ -29,6 +29,7 @@ from omegaconf import OmegaConf
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.experiment import build_run, compose
+from mpclab.quiet import c_stdout_silenced
 from mpclab.sim import simulate
 
 QPS = ("qpoases", "osqp", "qrqp", "hpipm", "daqp", "piqp", "proxqp")
@@ -44,6 +45,8 @@ def candidates() -> dict[str, dict[str, Any]]:
         "fatrop-jit": {"solver": "fatrop", "shooting": "multiple", "jit": True},
         "fatrop-jit-O0": {"solver": "fatrop", "shooting": "multiple", "jit": True,
                           "jit_flags": ["-O0"]},
+        "fatrop-jit-O2": {"solver": "fatrop", "shooting": "multiple", "jit": True,
+                          "jit_flags": ["-O2"]},
     }
     for shooting in ("single", "multiple"):
         for qp in QPS:
@@ -125,11 +128,12 @@ def main() -> None:
     for name in names:
         t0 = time.perf_counter()
         try:
-            ctrls[name] = build(cfg, run, candidates()[name])
+            with c_stdout_silenced():  # qpOASES' banner
+                ctrls[name] = build(cfg, run, candidates()[name])
         except Exception as exc:  # a plugin that refuses this problem (hpipm's structure)
             print(f"  {name}: not built: {type(exc).__name__}: {str(exc).splitlines()[-1]}")
             continue
-        if time.perf_counter() - t0 > 1:
+        if time.perf_counter() - t0 > 1:  # a compile (or a slow build) shows here
             print(f"  built {name} in {time.perf_counter() - t0:.1f} s")
     names = list(ctrls)
     rows: dict[str, list[tuple[float, float, Any]]] = {n: [] for n in names}

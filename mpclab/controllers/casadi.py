@@ -75,6 +75,8 @@ _TRUNCATED = frozenset({
 })
 #: fatrop's numeric return codes (its ``return_status``) for a cap: 1 is MaxIterExceeded
 _FATROP_TRUNCATED = frozenset({"1"})
+#: how far (relative to the bound) a capped iterate may lie outside its bounds and be clipped
+_CLIP_TOL = 0.05
 #: CasADi's unified return status -> ours (``SOLVER_RET_SUCCESS`` is refined by _TRUNCATED)
 _UNIFIED = {
     "SOLVER_RET_SUCCESS": SolveStatus.converged,
@@ -361,13 +363,19 @@ class CasadiMPC(Controller):
             io["lam_x0"][:], io["lam_g0"][:] = self._lam_x, self._lam_g
         else:
             io["lam_x0"][:] = io["lam_g0"][:] = 0.0
-        self._solve_nlp()
+        self.call_solver()
         status, raw, iters = read_status(self._buffer)
         w = io["x"].copy()
         if status in (SolveStatus.converged, SolveStatus.truncated) and not (
             np.all(np.isfinite(w)) and self._within_bounds(w)
-        ):  # an iterate outside its bounds: an SQP step whose QP failed silently
-            status, raw = SolveStatus.failed, f"{raw}:out_of_bounds"
+        ):
+            if status is SolveStatus.truncated and self._within_bounds(w, _CLIP_TOL):
+                # a capped iterate a little outside (fatrop's bounds are met only at
+                # convergence): usable once clipped
+                w = np.clip(w, self.ocp.lbw, self.ocp.ubw)
+                raw = f"{raw}:clipped"
+            else:  # far outside, or "converged" outside: a step whose QP failed silently
+                status, raw = SolveStatus.failed, f"{raw}:out_of_bounds"
         if status not in (SolveStatus.converged, SolveStatus.truncated):
             self._lam_x = self._lam_g = None
             return self._failed(status, x, raw, iterations=iters)
@@ -381,8 +389,9 @@ class CasadiMPC(Controller):
             solver_status=raw, iterations=iters,
         )
 
-    def _solve_nlp(self) -> None:
-        """One call of the solver on the arrays of ``_io`` (in place, no conversions)."""
+    def call_solver(self) -> None:
+        """One call of the solver on the arrays of ``_io`` (in place, no conversions); wrap
+        it to time the solver alone."""
         self._trigger()
 
     def _bind_buffers(self) -> None:
@@ -405,9 +414,12 @@ class CasadiMPC(Controller):
             self._buffer.set_res(i, memoryview(a))
 
     def _within_bounds(self, w: FloatArray, tol: float = 1e-6) -> bool:
-        """Whether ``w`` keeps its variable bounds (a QP solved to success always does)."""
-        slack = tol * (1.0 + np.abs(w))
-        return bool(np.all(w >= self.ocp.lbw - slack) and np.all(w <= self.ocp.ubw + slack))
+        """Whether ``w`` keeps its variable bounds up to ``tol`` relative to the bound (a QP
+        solved to success always does)."""
+        lo, hi = self.ocp.lbw, self.ocp.ubw
+        with np.errstate(invalid="ignore"):  # inf - inf where a side is unbounded
+            return bool(np.all(w >= lo - tol * (1.0 + np.abs(lo)))
+                        and np.all(w <= hi + tol * (1.0 + np.abs(hi))))
 
     def _shift_lam_x(self, lam: FloatArray) -> FloatArray:
         out = np.zeros_like(lam)
