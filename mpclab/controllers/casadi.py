@@ -244,7 +244,8 @@ class CasadiMPC(Controller):
             terminal_rows(plant, dict(terminal_constraint or {})),
         )
         self.solver_fn = self._make_solver(dict(solver_options or {}))
-        self._bind_buffers()
+        with c_stdout_silenced():  # the buffer's memory builds a qpOASES: its banner
+            self._bind_buffers()
         self._lam_x: FloatArray | None = None
         self._lam_g: FloatArray | None = None
 
