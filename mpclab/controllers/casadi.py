@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import Enum, StrEnum
+from enum import Enum
 from typing import Any
 
 import casadi as ca
@@ -41,6 +41,12 @@ from mpclab.controllers.base import (
 )
 from mpclab.controllers.casadi_compile import DEFAULT_FLAGS, compiled_nlp
 from mpclab.controllers.casadi_ocp import OCP, Shooting, build_ocp
+from mpclab.controllers.casadi_solvers import (
+    CasadiSolver,
+    QpSolver,
+    nlpsol_options,
+    read_status,
+)
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -50,67 +56,8 @@ from mpclab.registry import component
 __all__ = ["CasadiMPC", "CasadiSolver", "QpSolver", "Shooting", "read_status"]
 
 
-class CasadiSolver(StrEnum):
-    ipopt = "ipopt"
-    fatrop = "fatrop"
-    sqp = "sqp"
-    sqp_rti = "sqp_rti"
-
-
-class QpSolver(StrEnum):
-    qpoases = "qpoases"
-    osqp = "osqp"
-    qrqp = "qrqp"
-    hpipm = "hpipm"
-    daqp = "daqp"
-    piqp = "piqp"
-    proxqp = "proxqp"
-
-
-#: solvers' own return strings that mean a stop short of the full tolerance with a usable
-#: iterate (an iteration or time cap, IPOPT's reduced "acceptable" tolerance)
-_TRUNCATED = frozenset({
-    "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
-    "Maximum_WallTime_Exceeded", "Search_Direction_Becomes_Too_Small",
-})
-#: fatrop's numeric return codes (its ``return_status``) for a cap: 1 is MaxIterExceeded
-_FATROP_TRUNCATED = frozenset({"1"})
 #: how far (relative to the bound) a capped iterate may lie outside its bounds and be clipped
 _CLIP_TOL = 0.05
-#: CasADi's unified return status -> ours (``SOLVER_RET_SUCCESS`` is refined by _TRUNCATED)
-_UNIFIED = {
-    "SOLVER_RET_SUCCESS": SolveStatus.converged,
-    "SOLVER_RET_LIMITED": SolveStatus.truncated,
-    "SOLVER_RET_INFEASIBLE": SolveStatus.infeasible,
-    "SOLVER_RET_NAN": SolveStatus.failed,
-    "SOLVER_RET_EXCEPTION": SolveStatus.exception,
-}
-
-
-def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
-    """What an ``nlpsol`` did in its last call: ``(status, return string, iterations)``.
-
-    ``stats()`` raises for some plugins when they stop without a status string (sqpmethod
-    after a failed QP); that is a failed solve, not a crash. IPOPT's "acceptable" level and
-    an iteration cap count as truncated; fatrop's ``return_status`` is a number: 0 with its
-    ``success`` flag is converged, 1 its iteration cap (truncated), others failed.
-    """
-    try:
-        stats = fn.stats()
-    except RuntimeError:
-        return SolveStatus.failed, "no_status", None
-    raw = str(stats.get("return_status", ""))
-    iters = stats.get("iter_count")
-    iters = int(iters) if iters is not None else None
-    if raw in _TRUNCATED or raw in _FATROP_TRUNCATED:
-        return SolveStatus.truncated, raw, iters
-    if stats.get("success"):
-        return SolveStatus.converged, raw or "success", iters
-    unified = str(stats.get("unified_return_status", ""))
-    status = _UNIFIED.get(unified, SolveStatus.failed)
-    if status is SolveStatus.converged:  # success is False: the flag and the code disagree
-        status = SolveStatus.failed
-    return status, raw or unified or "unknown", iters
 
 
 @dataclass
@@ -251,7 +198,12 @@ class CasadiMPC(Controller):
 
     # ------------------------------------------------------------------ build once
     def _make_solver(self, extra: dict[str, Any]) -> ca.Function:
-        name, opts = self._solver_setup(extra)
+        name, opts = nlpsol_options(
+            self.solver, self.qp_solver, max_iter=self.max_iter, tol=self.tol,
+            sqp_iterations=self.sqp_iterations, warm_start=self.warm_start,
+            equality=self.ocp.equality,
+        )
+        opts.update(extra)
         self.compiled = False  # whether the NLP functions run compiled
         with c_stdout_silenced():  # qpOASES prints its banner on construction
             fn = ca.nlpsol("mpc", name, self.ocp.nlp, opts)
@@ -260,42 +212,6 @@ class CasadiMPC(Controller):
                 fn = ca.nlpsol("mpc", name, str(lib), opts)
                 self.compiled = True
         return fn
-
-    def _solver_setup(self, extra: dict[str, Any]) -> tuple[str, dict[str, Any]]:
-        opts: dict[str, Any] = {"print_time": False}
-        if self.solver is CasadiSolver.ipopt:
-            opts |= {"ipopt.print_level": 0, "ipopt.sb": "yes",
-                     "ipopt.max_iter": self.max_iter, "ipopt.tol": self.tol}
-            if self.warm_start:
-                opts["ipopt.warm_start_init_point"] = "yes"
-            name = "ipopt"
-        elif self.solver is CasadiSolver.fatrop:
-            opts |= {"structure_detection": "auto", "equality": self.ocp.equality,
-                     "fatrop.print_level": 0, "fatrop.max_iter": self.max_iter,
-                     "fatrop.tol": self.tol}
-            name = "fatrop"
-        else:
-            qp_opts = {
-                QpSolver.qpoases: {"printLevel": "none"},
-                QpSolver.osqp: {"osqp": {"verbose": False}},
-                QpSolver.qrqp: {"print_iter": False, "print_header": False,
-                                "print_info": False},
-                QpSolver.piqp: {"piqp": {"verbose": False}},
-                QpSolver.proxqp: {"proxqp": {"verbose": False}},
-            }.get(self.qp_solver, {}) | {"error_on_fail": False}
-            rti = self.solver is CasadiSolver.sqp_rti
-            opts |= {
-                "print_header": False, "print_iteration": False, "print_status": False,
-                "max_iter": self.sqp_iterations if rti else self.max_iter,
-                "tol_pr": self.tol, "tol_du": self.tol,
-                "qpsol": self.qp_solver.value, "qpsol_options": qp_opts,
-                "convexify_strategy": "eigen-clip",
-                "max_iter_eig": 500,  # the default 50 left dense Hessians undecomposed
-                "error_on_fail": False,
-            }
-            name = "sqpmethod"
-        opts.update(extra)
-        return name, opts
 
     # ------------------------------------------------------------------ per step
     def reset(self, x0: Any) -> None:
