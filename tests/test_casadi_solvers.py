@@ -197,3 +197,17 @@ def test_car_solvers_agree_with_ipopt(opts) -> None:
         assert a.status is b.status is SolveStatus.converged, b.solver_status
         assert b.cost == pytest.approx(a.cost, rel=1e-4)
         assert b.u == pytest.approx(a.u, abs=1e-3)
+
+
+def test_fatrop_takes_the_collision_constraint_and_agrees_with_ipopt(zumo_setup) -> None:
+    # the stage-wise constraint order lets fatrop detect the structure with path constraints
+    x, det, active = STATES[0]
+    kw = {"collision_distance": 0.06, "tol": 1e-8, "max_iter": 500}
+    a = _mpc(zumo_setup, solver="ipopt", **kw).step(0.0, x, _ctx(det, active))
+    b = _mpc(zumo_setup, solver="fatrop", **kw).step(0.0, x, _ctx(det, active))
+    assert a.status is b.status is SolveStatus.converged
+    assert b.cost == pytest.approx(a.cost, rel=1e-4)
+    assert b.u == pytest.approx(a.u, abs=1e-3)
+    points = np.array(det)
+    dist = np.hypot(*(b.x_pred[1:, None, :2] - points[None]).transpose(2, 0, 1))
+    assert dist.min() >= 0.06 - 1e-6

@@ -134,13 +134,14 @@ def build_ocp(
             ubw.append(inf if k == 0 else plant.x_ub)
             if k == 0:
                 add(Xs[0] - x0, 0.0, 0.0)
-            else:
-                path(Xs[k])
-            if k < T:
+            if k < T:  # a stage's gap-closing constraint, then its path constraints (the
+                # order fatrop's structure detection takes)
                 w_parts.append(Us[k])
                 lbw.append(plant.u_lb)
                 ubw.append(plant.u_ub)
                 add(Xs[k + 1] - plant.F(Xs[k], Us[k], dt), 0.0, 0.0)
+            if k > 0:
+                path(Xs[k])
         stride = nx + nu
         x_idx = np.array([[k * stride + i for i in range(nx)] for k in range(T + 1)])
         u_idx = np.array([[k * stride + nx + i for i in range(nu)] for k in range(T)])
