@@ -211,3 +211,20 @@ def test_fatrop_takes_the_collision_constraint_and_agrees_with_ipopt(zumo_setup)
     points = np.array(det)
     dist = np.hypot(*(b.x_pred[1:, None, :2] - points[None]).transpose(2, 0, 1))
     assert dist.min() >= 0.06 - 1e-6
+
+
+def test_one_nlp_per_active_set_solves_the_same_problem(zumo_setup) -> None:
+    sets = [["J1", "J2", "J3", "J4"], ["J3", "J4", "J5f"]]
+    full = _mpc(zumo_setup, solver="fatrop", tol=1e-8)
+    split = _mpc(zumo_setup, solver="fatrop", tol=1e-8, active_sets=sets)
+    assert len(split._by_set) == 2 and split.metrics(None)["nlps"] == 3
+    for x, det, active in STATES:
+        full.reset(x)
+        split.reset(x)
+        a, b = full.step(0.0, x, _ctx(det, active)), split.step(0.0, x, _ctx(det, active))
+        assert split._nlp.names == [n for n in full._names if n in active]
+        assert a.status is b.status is SolveStatus.converged
+        assert b.cost == pytest.approx(a.cost, rel=1e-6)
+        assert b.u_pred == pytest.approx(a.u_pred, abs=1e-5)
+    with pytest.raises(ConfigError, match="active_sets"):
+        _mpc(zumo_setup, solver="fatrop", active_sets=[["J1", "J9"]])

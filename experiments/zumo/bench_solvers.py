@@ -43,6 +43,10 @@ def candidates() -> dict[str, dict[str, Any]]:
         "ipopt-multiple-jit": {"solver": "ipopt", "shooting": "multiple", "jit": True},
         "fatrop": {"solver": "fatrop", "shooting": "multiple"},
         "fatrop-jit": {"solver": "fatrop", "shooting": "multiple", "jit": True},
+        "fatrop-jit-sets": {"solver": "fatrop", "shooting": "multiple", "jit": True,
+                            "active_sets": "recorded"},
+        "fatrop-jit-tol1e-4": {"solver": "fatrop", "shooting": "multiple", "jit": True,
+                               "tol": 1e-4},
         "fatrop-jit-O0": {"solver": "fatrop", "shooting": "multiple", "jit": True,
                           "jit_flags": ["-O0"]},
         "fatrop-jit-O2": {"solver": "fatrop", "shooting": "multiple", "jit": True,
@@ -86,10 +90,16 @@ def record(experiment: str, overrides: list[str]) -> tuple[Any, list[Recorded], 
     return cfg, steps, str(res.summary["status"])
 
 
-def build(cfg: Any, run: Any, opts: dict[str, Any]) -> CasadiMPC:
+def build(cfg: Any, run: Any, opts: dict[str, Any],
+          steps: list[Recorded] = ()) -> CasadiMPC:
+    """The experiment's controller with ``opts``; ``active_sets: recorded`` gives one NLP
+    to each set of terms the recorded steps used."""
     c = OmegaConf.to_container(cfg.controller, resolve=True)
     c.pop("_target_")
     c.update(opts)
+    if c.get("active_sets") == "recorded":
+        c["active_sets"] = sorted({tuple(sorted(s.ctx.active)) for s in steps
+                                   if s.ctx.active is not None})
     return CasadiMPC(run.plant, run.controller.objective, **c)
 
 
@@ -129,7 +139,7 @@ def main() -> None:
         t0 = time.perf_counter()
         try:
             with c_stdout_silenced():  # qpOASES' banner
-                ctrls[name] = build(cfg, run, candidates()[name])
+                ctrls[name] = build(cfg, run, candidates()[name], steps)
         except Exception as exc:  # a plugin that refuses this problem (hpipm's structure)
             print(f"  {name}: not built: {type(exc).__name__}: {str(exc).splitlines()[-1]}")
             continue

@@ -44,6 +44,7 @@ from mpclab.controllers.casadi_ocp import OCP, Shooting, build_ocp
 from mpclab.controllers.casadi_solvers import (
     CasadiSolver,
     QpSolver,
+    bind_buffers,
     nlpsol_options,
     read_status,
 )
@@ -58,6 +59,19 @@ __all__ = ["CasadiMPC", "CasadiSolver", "QpSolver", "Shooting", "read_status"]
 
 #: how far (relative to the bound) a capped iterate may lie outside its bounds and be clipped
 _CLIP_TOL = 0.05
+
+
+@dataclass
+class _NLP:
+    """One NLP of the controller: its terms, problem, solver and the solver's arrays."""
+
+    names: list[str]
+    ocp: OCP
+    fn: ca.Function
+    buffer: Any
+    trigger: Any
+    io: dict[str, FloatArray]
+    compiled: bool
 
 
 @dataclass
@@ -79,6 +93,7 @@ class CasadiConf:
     initial_input: dict[str, float] = field(default_factory=dict)
     terminal_constraint: dict[str, float] = field(default_factory=dict)
     solver_options: dict[str, Any] = field(default_factory=dict)
+    active_sets: list[list[str]] = field(default_factory=list)
 
 
 @component("controller", "casadi", CasadiConf)
@@ -123,6 +138,10 @@ class CasadiMPC(Controller):
         ``{state label: value}`` imposed on the last predicted state.
     solver_options
         Extra options for ``nlpsol`` (e.g. ``{"ipopt.linear_solver": "ma27"}``).
+    active_sets
+        Sets of term names a supervisor switches between (e.g. BUG2's): each gets an NLP
+        of its terms only (cheaper per iteration than the NLP of all terms with the others
+        weighted 0, which serves any other set).
     """
 
     def __init__(
@@ -145,6 +164,7 @@ class CasadiMPC(Controller):
         initial_input: Mapping[str, float] | None = None,
         terminal_constraint: Mapping[str, float] | None = None,
         solver_options: Mapping[str, Any] | None = None,
+        active_sets: Sequence[Sequence[str]] = (),
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.solver = _enum(CasadiSolver, solver, "controller.solver")
@@ -185,51 +205,62 @@ class CasadiMPC(Controller):
         objective.bind(plant, "casadi")
         self._names = list(objective.terms)
         self._M = max(self.max_detections, 1)
-        self.ocp: OCP = build_ocp(
-            plant, objective, self._names, self.horizon, self.dt, self.shooting,
-            self.max_detections, self.collision_distance,
-            terminal_rows(plant, dict(terminal_constraint or {})),
-        )
-        self.solver_fn = self._make_solver(dict(solver_options or {}))
-        with c_stdout_silenced():  # the buffer's memory builds a qpOASES: its banner
-            self._bind_buffers()
+        terminal = terminal_rows(plant, dict(terminal_constraint or {}))
+        extra = dict(solver_options or {})
+        sets = {}
+        for names in active_sets:
+            unknown = set(names) - set(self._names)
+            if unknown:
+                raise ConfigError(f"controller.active_sets: terms {sorted(unknown)} are not in "
+                                  f"the objective; its terms: {', '.join(self._names)}")
+            sets[frozenset(names)] = [n for n in self._names if n in names]
+        self._full = self._make_nlp(self._names, terminal, extra)
+        self._by_set = {key: self._make_nlp(names, terminal, extra)
+                        for key, names in sets.items()}
+        self.ocp: OCP = self._full.ocp  # the layout (variables, bounds) all NLPs share
+        self.solver_fn = self._full.fn
+        self.compiled = all(n.compiled for n in (self._full, *self._by_set.values()))
+        self._nlp = self._full  # the one the current step solves
         self._lam_x: FloatArray | None = None
         self._lam_g: FloatArray | None = None
 
     # ------------------------------------------------------------------ build once
-    def _make_solver(self, extra: dict[str, Any]) -> ca.Function:
+    def _make_nlp(self, names: list[str], terminal: Any, extra: dict[str, Any]) -> _NLP:
+        """The OCP of the terms ``names``, its solver (compiled if ``jit``) and buffers."""
+        ocp = build_ocp(self.plant, self.objective, names, self.horizon, self.dt,
+                        self.shooting, self.max_detections, self.collision_distance, terminal)
         name, opts = nlpsol_options(
             self.solver, self.qp_solver, max_iter=self.max_iter, tol=self.tol,
             sqp_iterations=self.sqp_iterations, warm_start=self.warm_start,
-            equality=self.ocp.equality,
+            equality=ocp.equality,
         )
         opts.update(extra)
-        self.compiled = False  # whether the NLP functions run compiled
-        with c_stdout_silenced():  # qpOASES prints its banner on construction
-            fn = ca.nlpsol("mpc", name, self.ocp.nlp, opts)
+        with c_stdout_silenced():  # qpOASES prints its banner whenever one is built
+            fn = ca.nlpsol("mpc", name, ocp.nlp, opts)
             lib = compiled_nlp(fn, self.jit_flags) if self.jit else None
             if lib is not None:
                 fn = ca.nlpsol("mpc", name, str(lib), opts)
-                self.compiled = True
-        return fn
+            buffer, trigger, io = bind_buffers(fn, {"lbx": ocp.lbw, "ubx": ocp.ubw,
+                                                    "lbg": ocp.lbg, "ubg": ocp.ubg})
+        return _NLP(names, ocp, fn, buffer, trigger, io, lib is not None)
 
     # ------------------------------------------------------------------ per step
     def reset(self, x0: Any) -> None:
         super().reset(x0)
         self._lam_x = self._lam_g = None
 
-    def _params(self, x: FloatArray, ctx: StepContext) -> FloatArray:
+    def _params(self, x: FloatArray, ctx: StepContext, nlp: _NLP | None = None) -> FloatArray:
+        nlp = nlp or self._full
         det, mask = self._pad_detections(x, np.asarray(ctx.detections, dtype=float))
-        if ctx.active is None:
-            act = np.ones(len(self._names))
-        else:
+        act = np.ones(len(nlp.names))
+        if ctx.active is not None:
             unknown = set(ctx.active) - set(self._names)
             if unknown:
                 raise ValueError(
                     f"active terms {sorted(unknown)} are not in the objective; "
                     f"its terms: {', '.join(self._names)}"
                 )
-            act = np.array([1.0 if n in ctx.active else 0.0 for n in self._names])
+            act = np.array([1.0 if n in ctx.active else 0.0 for n in nlp.names])
         values = {
             "x0": x, "goal": np.asarray(ctx.goal, dtype=float),
             "target": np.asarray(ctx.target, dtype=float).T, "detections": det, "mask": mask,
@@ -239,7 +270,7 @@ class CasadiMPC(Controller):
             ix, iy = (self.plant.state_index(s) for s in self.plant.position)
             d0 = np.hypot(det[0] - x[ix], det[1] - x[iy])
             values["radius"] = np.minimum(self.collision_distance, d0) * mask
-        return self.ocp.params.pack(**values)
+        return nlp.ocp.params.pack(**values)
 
     def _pad_detections(self, x: FloatArray, det: FloatArray) -> tuple[FloatArray, FloatArray]:
         M = self._M
@@ -273,15 +304,17 @@ class CasadiMPC(Controller):
         return w, warm
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
-        io = self._io
+        key = frozenset(ctx.active) if ctx.active is not None else None
+        self._nlp = nlp = self._by_set.get(key, self._full)
+        io = nlp.io
         io["x0"][:], warm = self._initial_guess(x)
-        io["p"][:] = self._params(x, ctx)
+        io["p"][:] = self._params(x, ctx, nlp)
         if warm and self._lam_g is not None:
             io["lam_x0"][:], io["lam_g0"][:] = self._lam_x, self._lam_g
         else:
             io["lam_x0"][:] = io["lam_g0"][:] = 0.0
         self.call_solver()
-        status, raw, iters = read_status(self._buffer)
+        status, raw, iters = read_status(nlp.buffer)
         w = io["x"].copy()
         if status in (SolveStatus.converged, SolveStatus.truncated) and not (
             np.all(np.isfinite(w)) and self._within_bounds(w)
@@ -300,35 +333,16 @@ class CasadiMPC(Controller):
         self._lam_x = self._shift_lam_x(io["lam_x"])
         self._lam_g = io["lam_g"].copy()
         U = w[ocp.u_idx]
-        X = w[ocp.x_idx] if ocp.x_idx is not None else ocp.plan_fn(w, io["p"]).full().T
+        X = w[ocp.x_idx] if ocp.x_idx is not None else nlp.ocp.plan_fn(w, io["p"]).full().T
         return ControlStep(
             u=U[0].copy(), x_pred=X, u_pred=U, status=status, cost=float(io["f"][0]),
             solver_status=raw, iterations=iters,
         )
 
     def call_solver(self) -> None:
-        """One call of the solver on the arrays of ``_io`` (in place, no conversions); wrap
+        """One call of the current NLP's solver on its arrays (in place, no conversions); wrap
         it to time the solver alone."""
-        self._trigger()
-
-    def _bind_buffers(self) -> None:
-        """NumPy arrays that the solver reads its inputs from and writes its outputs into.
-
-        CasADi's buffer interface: converting the eight inputs and six outputs of a call to
-        and from ``DM`` cost more than a car's solve (measured: experiments/zumo/SOLVERS.md).
-        """
-        fn = self.solver_fn
-        self._buffer, self._trigger = fn.buffer()
-        self._io: dict[str, FloatArray] = {}
-        fixed = {"lbx": self.ocp.lbw, "ubx": self.ocp.ubw, "lbg": self.ocp.lbg,
-                 "ubg": self.ocp.ubg}
-        for i, name in enumerate(fn.name_in()):
-            a = np.array(fixed[name], dtype=float) if name in fixed else np.zeros(fn.nnz_in(i))
-            self._io[name] = a
-            self._buffer.set_arg(i, memoryview(a))
-        for i, name in enumerate(fn.name_out()):
-            self._io[name] = a = np.zeros(fn.nnz_out(i))
-            self._buffer.set_res(i, memoryview(a))
+        self._nlp.trigger()
 
     def _within_bounds(self, w: FloatArray, tol: float = 1e-6) -> bool:
         """Whether ``w`` keeps its variable bounds up to ``tol`` relative to the bound (a QP
@@ -346,7 +360,7 @@ class CasadiMPC(Controller):
         return out
 
     def metrics(self, steps: Any) -> dict[str, Any]:
-        return {"solver": self.solver.value, "jit": self.compiled,
+        return {"solver": self.solver.value, "jit": self.compiled, "nlps": 1 + len(self._by_set),
                 "collision_distance": self.collision_distance}
 
 

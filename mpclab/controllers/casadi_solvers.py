@@ -11,6 +11,7 @@ from enum import StrEnum
 from typing import Any
 
 import casadi as ca
+import numpy as np
 
 from mpclab.controllers.base import SolveStatus
 
@@ -114,3 +115,25 @@ def nlpsol_options(
         }
         name = "sqpmethod"
     return name, opts
+
+
+def bind_buffers(
+    fn: ca.Function, fixed: dict[str, np.ndarray]
+) -> tuple[Any, Any, dict[str, np.ndarray]]:
+    """``(buffer, trigger, arrays)``: NumPy arrays the solver reads its inputs from and
+    writes its outputs into, by name; ``fixed`` inputs get their values once.
+
+    CasADi's buffer interface: converting the eight inputs and six outputs of a call to and
+    from ``DM`` costs more than a car's solve (experiments/zumo/SOLVERS.md). ``trigger()``
+    solves; ``buffer.stats()`` says how.
+    """
+    buffer, trigger = fn.buffer()
+    io: dict[str, np.ndarray] = {}
+    for i, name in enumerate(fn.name_in()):
+        a = np.array(fixed[name], dtype=float) if name in fixed else np.zeros(fn.nnz_in(i))
+        io[name] = a
+        buffer.set_arg(i, memoryview(a))
+    for i, name in enumerate(fn.name_out()):
+        io[name] = a = np.zeros(fn.nnz_out(i))
+        buffer.set_res(i, memoryview(a))
+    return buffer, trigger, io
