@@ -81,7 +81,7 @@ def test_rti_and_osqp_take_one_qp_per_step() -> None:
 
 
 def test_bad_options_name_the_choices() -> None:
-    with pytest.raises(ConfigError, match="ipopt, sqp_rti"):
+    with pytest.raises(ConfigError, match="ipopt, fatrop, sqp, sqp_rti"):
         _zumo({"J1": GoalAttraction()}, solver="snopt")
     with pytest.raises(ConfigError, match="terminal_constraint"):
         _zumo({"J1": GoalAttraction()}, terminal_constraint={"vx": 0.0})
@@ -138,7 +138,7 @@ def test_collision_constraint_keeps_predicted_positions_off_detected_points(solv
 
 def test_within_bounds_flags_a_failed_qp_iterate() -> None:
     mpc = _zumo({"J1": GoalAttraction()}, solver="sqp_rti", shooting="single")
-    w = np.zeros(mpc._lbw.size)
+    w = np.zeros(mpc.ocp.lbw.size)
     assert mpc._within_bounds(w)
     w[3] = 10.5   # an input beyond |u| <= 10, as a silently failed QP leaves it
     assert not mpc._within_bounds(w)

@@ -45,7 +45,8 @@ class _Stats:
     ({"return_status": "Infeasible_Problem_Detected", "success": False,
       "unified_return_status": "SOLVER_RET_INFEASIBLE"}, SolveStatus.infeasible),
     ({"return_status": "0", "success": True, "iter_count": 7}, SolveStatus.converged),  # fatrop
-    ({"return_status": "1", "success": False}, SolveStatus.failed),
+    ({"return_status": "1", "success": False}, SolveStatus.truncated),  # fatrop's cap
+    ({"return_status": "4", "success": False}, SolveStatus.failed),
     ({"return_status": "Whatever", "success": False,
       "unified_return_status": "SOLVER_RET_SUCCESS"}, SolveStatus.failed),
 ])

@@ -39,19 +39,15 @@ FLAGS = {"C, cc -O2": ["-O2"], "C, cc -O3 -march=native": ["-O3", "-march=native
 
 
 class _TimedCalls:
-    """A CasADi solver function whose calls are timed (``stats`` passes through)."""
+    """The CasADi controller's solver call (``CasadiMPC.call_solver``), timed."""
 
-    def __init__(self, fn) -> None:
-        self.fn, self.times = fn, []
+    def __init__(self, call) -> None:
+        self.call, self.times = call, []
 
-    def __call__(self, **kwargs):
+    def __call__(self) -> None:
         t0 = time.perf_counter()
-        out = self.fn(**kwargs)
+        self.call()
         self.times.append(time.perf_counter() - t0)
-        return out
-
-    def stats(self):
-        return self.fn.stats()
 
 
 class _Constant:
@@ -78,8 +74,8 @@ def closed_loop(starts: int, weights: Path) -> tuple[dict[str, np.ndarray], np.n
         seed = FIRST_HELD_OUT_SEED + i
         common = ["recorder=none", "figures.enabled=false", "progress=false", f"seed={seed}"]
         expert = build_run(compose(["+experiment=zumo_nn_data", *common]))
-        solver_calls = _TimedCalls(expert.controller.solver_fn)
-        expert.controller.solver_fn = solver_calls
+        solver_calls = _TimedCalls(expert.controller.call_solver)
+        expert.controller.call_solver = solver_calls
         res = simulate(expert)
         times["MPC expert, solver call only"].append(np.array(solver_calls.times))
         times["MPC expert (in the loop)"].append(res.steps["solve_time_s"].dropna().to_numpy())

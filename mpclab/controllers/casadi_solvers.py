@@ -1,0 +1,139 @@
+"""CasADi's NLP solvers as the backend's choices: their options and what their stats mean.
+
+``read_status`` maps any ``nlpsol``'s stats (or a solver buffer's) to :class:`SolveStatus`;
+``nlpsol_options`` gives the plugin and its options for ``controller.solver`` (and
+``controller.qp_solver`` under SQP).
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from mpclab.controllers.base import SolveStatus
+
+
+class CasadiSolver(StrEnum):
+    ipopt = "ipopt"
+    fatrop = "fatrop"
+    sqp = "sqp"
+    sqp_rti = "sqp_rti"
+
+
+class QpSolver(StrEnum):
+    qpoases = "qpoases"
+    osqp = "osqp"
+    qrqp = "qrqp"
+    hpipm = "hpipm"
+    daqp = "daqp"
+    piqp = "piqp"
+    proxqp = "proxqp"
+
+
+#: solvers' own return strings that mean a stop short of the full tolerance with a usable
+#: iterate (an iteration or time cap, IPOPT's reduced "acceptable" tolerance)
+_TRUNCATED = frozenset({
+    "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
+    "Maximum_WallTime_Exceeded", "Search_Direction_Becomes_Too_Small",
+})
+#: fatrop's numeric return codes (its ``return_status``) for a cap: 1 is MaxIterExceeded
+_FATROP_TRUNCATED = frozenset({"1"})
+#: CasADi's unified return status -> ours (``SOLVER_RET_SUCCESS`` is refined by _TRUNCATED)
+_UNIFIED = {
+    "SOLVER_RET_SUCCESS": SolveStatus.converged,
+    "SOLVER_RET_LIMITED": SolveStatus.truncated,
+    "SOLVER_RET_INFEASIBLE": SolveStatus.infeasible,
+    "SOLVER_RET_NAN": SolveStatus.failed,
+    "SOLVER_RET_EXCEPTION": SolveStatus.exception,
+}
+
+
+def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
+    """What an ``nlpsol`` did in its last call: ``(status, return string, iterations)``.
+
+    ``stats()`` raises for some plugins when they stop without a status string (sqpmethod
+    after a failed QP); that is a failed solve, not a crash. IPOPT's "acceptable" level and
+    an iteration cap count as truncated; fatrop's ``return_status`` is a number: 0 with its
+    ``success`` flag is converged, 1 its iteration cap (truncated), others failed.
+    """
+    try:
+        stats = fn.stats()
+    except RuntimeError:
+        return SolveStatus.failed, "no_status", None
+    raw = str(stats.get("return_status", ""))
+    iters = stats.get("iter_count")
+    iters = int(iters) if iters is not None else None
+    if raw in _TRUNCATED or raw in _FATROP_TRUNCATED:
+        return SolveStatus.truncated, raw, iters
+    if stats.get("success"):
+        return SolveStatus.converged, raw or "success", iters
+    unified = str(stats.get("unified_return_status", ""))
+    status = _UNIFIED.get(unified, SolveStatus.failed)
+    if status is SolveStatus.converged:  # success is False: the flag and the code disagree
+        status = SolveStatus.failed
+    return status, raw or unified or "unknown", iters
+
+
+def nlpsol_options(
+    solver: CasadiSolver, qp_solver: QpSolver, *, max_iter: int, tol: float,
+    sqp_iterations: int, warm_start: bool, equality: list[bool],
+) -> tuple[str, dict[str, Any]]:
+    """The ``nlpsol`` plugin name and options of a solver choice (quiet, status-robust)."""
+    opts: dict[str, Any] = {"print_time": False}
+    if solver is CasadiSolver.ipopt:
+        opts |= {"ipopt.print_level": 0, "ipopt.sb": "yes",
+                 "ipopt.max_iter": max_iter, "ipopt.tol": tol}
+        if warm_start:
+            opts["ipopt.warm_start_init_point"] = "yes"
+        name = "ipopt"
+    elif solver is CasadiSolver.fatrop:
+        opts |= {"structure_detection": "auto", "equality": equality,
+                 "fatrop.print_level": 0, "fatrop.max_iter": max_iter,
+                 "fatrop.tol": tol}
+        name = "fatrop"
+    else:
+        qp_opts = {
+            QpSolver.qpoases: {"printLevel": "none"},
+            QpSolver.osqp: {"osqp": {"verbose": False}},
+            QpSolver.qrqp: {"print_iter": False, "print_header": False,
+                            "print_info": False},
+            QpSolver.piqp: {"piqp": {"verbose": False}},
+            QpSolver.proxqp: {"proxqp": {"verbose": False}},
+        }.get(qp_solver, {}) | {"error_on_fail": False}
+        rti = solver is CasadiSolver.sqp_rti
+        opts |= {
+            "print_header": False, "print_iteration": False, "print_status": False,
+            "max_iter": sqp_iterations if rti else max_iter,
+            "tol_pr": tol, "tol_du": tol,
+            "qpsol": qp_solver.value, "qpsol_options": qp_opts,
+            "convexify_strategy": "eigen-clip",
+            "max_iter_eig": 500,  # the default 50 left dense Hessians undecomposed
+            "error_on_fail": False,
+        }
+        name = "sqpmethod"
+    return name, opts
+
+
+def bind_buffers(
+    fn: ca.Function, fixed: dict[str, np.ndarray]
+) -> tuple[Any, Any, dict[str, np.ndarray]]:
+    """``(buffer, trigger, arrays)``: NumPy arrays the solver reads its inputs from and
+    writes its outputs into, by name; ``fixed`` inputs get their values once.
+
+    CasADi's buffer interface: converting the eight inputs and six outputs of a call to and
+    from ``DM`` costs more than a car's solve (experiments/zumo/SOLVERS.md). ``trigger()``
+    solves; ``buffer.stats()`` says how.
+    """
+    buffer, trigger = fn.buffer()
+    io: dict[str, np.ndarray] = {}
+    for i, name in enumerate(fn.name_in()):
+        a = np.array(fixed[name], dtype=float) if name in fixed else np.zeros(fn.nnz_in(i))
+        io[name] = a
+        buffer.set_arg(i, memoryview(a))
+    for i, name in enumerate(fn.name_out()):
+        io[name] = a = np.zeros(fn.nnz_out(i))
+        buffer.set_res(i, memoryview(a))
+    return buffer, trigger, io
