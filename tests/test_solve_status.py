@@ -91,7 +91,7 @@ def test_a_nan_result_labelled_success_is_a_failure_and_falls_back(monkeypatch) 
 
 
 def test_summary_counts_every_status(run_cfg) -> None:
-    res, _ = run_cfg(["+experiment=car_casadi", "controller.max_iter=3"])
+    res, _ = run_cfg(["+experiment=car_casadi", "controller=casadi", "controller.max_iter=3"])
     s = res.summary
     counts = {st: s[f"solves_{st}"] for st in SolveStatus}
     assert sum(counts.values()) == s["n_steps"]
@@ -101,3 +101,25 @@ def test_summary_counts_every_status(run_cfg) -> None:
     capped = steps["solver_status"] == "Maximum_Iterations_Exceeded"
     assert (steps.loc[capped, "status"] == "truncated").all()
     assert (steps.loc[capped, "iterations"] == 3).all()
+
+
+@pytest.mark.parametrize(("overrides", "cap"), [
+    (["+experiment=car_casadi", "controller.max_iter=1"], 1),          # SQP + qrqp
+    (["+experiment=car_casadi", "controller.max_iter=3"], 3),
+    (["+experiment=zumo_bug2", "controller.max_iter=3"], 3),           # fatrop
+    (["+experiment=zumo_bug2", "controller=casadi_rti", "controller.sqp_iterations=1"], 1),
+    (["+experiment=zumo_bug2", "controller=casadi_rti", "controller.sqp_iterations=20"], 20),
+], ids=["car_sqp_1", "car_sqp_3", "zumo_fatrop_3", "zumo_rti_1", "zumo_rti_20"])
+def test_any_iteration_cap_is_truncated_never_an_exception(run_cfg, overrides, cap) -> None:
+    res, _ = run_cfg([*overrides, "scenario.t_max=2.0"])
+    s = res.summary
+    assert s["status"] != "error", s["error"]
+    assert s["solves_exception"] == 0
+    steps = res.steps[res.steps["status"] != "final"]
+    unconverged = steps[steps["status"] != "converged"]
+    assert len(unconverged) > 0 and s["solves_truncated"] == len(unconverged)
+    assert (unconverged["status"] == "truncated").all()
+    # the cap is what stopped them (fatrop counts one more; sqpmethod's own count can stop
+    # short of its cap while it reports Maximum_Iterations_Exceeded)
+    assert (unconverged["iterations"] >= cap).any()
+    assert (steps["iterations"] <= cap + 1).all()

@@ -6,8 +6,9 @@ region and the exact Hessian, Clarabel on the compiled data), the same with the 
 QP, through ``Problem.solve``, in the one-pass mode (``sl=one_pass``: one QP per step,
 truncated), and, in the same process, a reference that builds a new CVXPY problem at every
 step the way the study did (constants instead of parameters, one ``Problem`` per stage summed)
-with the one-pass linearization. Whole closed-loop runs alternate for ``--rounds`` rounds and
-the per-step times of each are pooled.
+with the one-pass linearization; and ``car_casadi``, the same OCP solved as a nonlinear program
+to convergence (CasADi's SQP with qrqp, compiled). Whole closed-loop runs alternate for
+``--rounds`` rounds and the per-step times of each are pooled.
 
     uv run python experiments/car_cvxpy/bench.py [--rounds 5]
 """
@@ -102,6 +103,10 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
         "converged SL, Gauss-Newton QP (cap 20)": build(["controller.hessian=gauss_newton"]),
         "one pass (sl=one_pass)": build(["controller.sl=one_pass"]),
         REF: rebuilt(),
+        # the same OCP as a nonlinear program: CasADi's SQP (qrqp) to convergence, compiled
+        # (iterations are SQP iterations, one QP each)
+        "converged NLP, CasADi SQP + qrqp, compiled (car_casadi)": build_run(
+            compose(["+experiment=car_casadi", "recorder=none"])),
     }
     steps: dict[str, list[pd.DataFrame]] = {name: [] for name in runs}
     cpu: dict[str, list[float]] = {name: [] for name in runs}

@@ -57,9 +57,6 @@ from mpclab.registry import component
 __all__ = ["CasadiMPC", "CasadiSolver", "QpSolver", "Shooting", "read_status"]
 
 
-#: how far (relative to the bound) a capped iterate may lie outside its bounds and be clipped
-_CLIP_TOL = 0.05
-
 
 @dataclass
 class _NLP:
@@ -301,6 +298,8 @@ class CasadiMPC(Controller):
         w[self.ocp.u_idx] = U
         if self.ocp.x_idx is not None:
             w[self.ocp.x_idx] = X
+        if self.ocp.s_idx is not None:  # the lifted input before each step
+            w[self.ocp.s_idx] = np.vstack([self.previous_input, U])
         return w, warm
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
@@ -319,9 +318,10 @@ class CasadiMPC(Controller):
         if status in (SolveStatus.converged, SolveStatus.truncated) and not (
             np.all(np.isfinite(w)) and self._within_bounds(w)
         ):
-            if status is SolveStatus.truncated and self._within_bounds(w, _CLIP_TOL):
-                # a capped iterate a little outside (fatrop's bounds are met only at
-                # convergence): usable once clipped
+            if status is SolveStatus.truncated and np.all(np.isfinite(w)):
+                # a capped iterate need not keep its bounds yet (fatrop's interior point meets
+                # them only at convergence, an SQP's state bounds after a few iterations):
+                # usable once clipped, and it says so
                 w = np.clip(w, self.ocp.lbw, self.ocp.ubw)
                 raw = f"{raw}:clipped"
             else:  # far outside, or "converged" outside: a step whose QP failed silently
@@ -355,8 +355,9 @@ class CasadiMPC(Controller):
     def _shift_lam_x(self, lam: FloatArray) -> FloatArray:
         out = np.zeros_like(lam)
         out[self.ocp.u_idx] = shift(lam[self.ocp.u_idx])
-        if self.ocp.x_idx is not None:
-            out[self.ocp.x_idx] = shift(lam[self.ocp.x_idx])
+        for idx in (self.ocp.x_idx, self.ocp.s_idx):
+            if idx is not None:
+                out[idx] = shift(lam[idx])
         return out
 
     def metrics(self, steps: Any) -> dict[str, Any]:

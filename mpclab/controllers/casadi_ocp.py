@@ -84,6 +84,7 @@ class OCP:
     ubw: np.ndarray
     x_idx: np.ndarray | None   # (T+1, nx) indices of the states in w (multiple shooting)
     u_idx: np.ndarray          # (T, nu) indices of the inputs in w
+    s_idx: np.ndarray | None   # (T+1, nu) indices of the lifted inputs-before (or None)
     plan_fn: ca.Function       # (w, p) -> X (nx, T+1)
 
 
@@ -103,9 +104,17 @@ def build_ocp(
     active = P.add("active", len(term_names))
     u_prev = P.add("u_prev", nu)
     radius = P.add("radius", M) if collision_distance > 0 else None
-    ctx = TermContext(x0=x0, target=target, u_prev=u_prev, goal=goal, detections=det,
-                      mask=mask)
     Us = [ca.SX.sym(f"u{k}", nu) for k in range(T)]
+    # a term coupling each input to the one before (an input rate) makes the NLP's Hessian
+    # couple neighbouring stages, which a stage-structured solver cannot take: the input
+    # before each step becomes a state of its own (s_0 = u_prev, s_{k+1} = u_k), the "lifted"
+    # form, and the term reads s_k. Decided over the whole objective, so that every NLP of
+    # one objective (one per active set) has the same variables
+    lift = shooting is Shooting.multiple and any(
+        t.uses_input_before for t in objective.terms.values())
+    Ss = [ca.SX.sym(f"s{k}", nu) for k in range(T + 1)] if lift else []
+    ctx = TermContext(x0=x0, target=target, u_prev=u_prev, goal=goal, detections=det,
+                      mask=mask, u_before=ca.horzcat(*Ss[:T]) if lift else None)
     g: list[ca.SX] = []
     lbg: list[np.ndarray] = []
     ubg: list[np.ndarray] = []
@@ -128,23 +137,31 @@ def build_ocp(
     if shooting is Shooting.multiple:
         Xs = [ca.SX.sym(f"x{k}", nx) for k in range(T + 1)]
         w_parts, lbw, ubw = [], [], []
+        ns = nu if lift else 0
         for k in range(T + 1):
             w_parts.append(Xs[k])
             lbw.append(-inf if k == 0 else plant.x_lb)
             ubw.append(inf if k == 0 else plant.x_ub)
+            if lift:
+                w_parts.append(Ss[k])
+                lbw.append(np.full(nu, -np.inf))
+                ubw.append(np.full(nu, np.inf))
             if k == 0:
-                add(Xs[0] - x0, 0.0, 0.0)
+                add(ca.vertcat(Xs[0] - x0, *([Ss[0] - u_prev] if lift else [])), 0.0, 0.0)
             if k < T:  # a stage's gap-closing constraint, then its path constraints (the
                 # order fatrop's structure detection takes)
                 w_parts.append(Us[k])
                 lbw.append(plant.u_lb)
                 ubw.append(plant.u_ub)
-                add(Xs[k + 1] - plant.F(Xs[k], Us[k], dt), 0.0, 0.0)
+                gap = [Xs[k + 1] - plant.F(Xs[k], Us[k], dt)]
+                add(ca.vertcat(*gap, *([Ss[k + 1] - Us[k]] if lift else [])), 0.0, 0.0)
             if k > 0:
                 path(Xs[k])
-        stride = nx + nu
+        stride = nx + ns + nu
         x_idx = np.array([[k * stride + i for i in range(nx)] for k in range(T + 1)])
-        u_idx = np.array([[k * stride + nx + i for i in range(nu)] for k in range(T)])
+        u_idx = np.array([[k * stride + nx + ns + i for i in range(nu)] for k in range(T)])
+        s_idx = (np.array([[k * stride + nx + i for i in range(nu)] for k in range(T + 1)])
+                 if lift else None)
     else:
         Xs = [x0]
         for k in range(T):
@@ -152,7 +169,7 @@ def build_ocp(
             path(Xs[-1])
         w_parts = list(Us)
         lbw, ubw = [plant.u_lb] * T, [plant.u_ub] * T
-        x_idx, u_idx = None, np.arange(T * nu).reshape(T, nu)
+        x_idx, u_idx, s_idx = None, np.arange(T * nu).reshape(T, nu), None
     X, U = ca.horzcat(*Xs), ca.horzcat(*Us)
     for i, value in terminal:
         add(X[i, T] - value, 0.0, 0.0)
@@ -167,7 +184,7 @@ def build_ocp(
     return OCP(
         nlp=nlp, params=P, lbg=lo, ubg=hi,
         equality=[bool(v) for v in (lo == hi)], lbw=np.concatenate(lbw),
-        ubw=np.concatenate(ubw), x_idx=x_idx, u_idx=u_idx,
+        ubw=np.concatenate(ubw), x_idx=x_idx, u_idx=u_idx, s_idx=s_idx,
         plan_fn=ca.Function("plan", [w, p], [X]),
     )
 

@@ -40,6 +40,11 @@ class TermContext:
         The goal state ``(nx,)``.
     detections, mask
         Detected points ``(2, M)`` and ``(M,)`` with 1 for a real point, 0 for padding.
+    u_before
+        The input in force before each predicted step ``(nu, T)``: ``u_prev``, then the plan's
+        own ``u_0 .. u_{T-2}``. None: a term builds it from ``u_prev`` and ``U``. A
+        stage-structured NLP (fatrop) gives lifted variables here, so that a term using it
+        stays local to each stage.
     """
 
     x0: Any
@@ -48,12 +53,15 @@ class TermContext:
     goal: Any = None
     detections: Any = None
     mask: Any = None
+    u_before: Any = None
 
 
 class Term:
     """Base class of objective terms. ``name`` is set by the objective from its config key."""
 
     name: str = ""
+    #: whether the term reads ``TermContext.u_before`` (couples each step to the one before)
+    uses_input_before: bool = False
 
     def bind(self, plant: Any) -> None:
         """Resolve state/input labels against ``plant``; called once by the backend."""

@@ -30,6 +30,8 @@ class InputRate(Term):
         ``{input label: weight}`` on ``(u[k] - u[k-1])^2``; inputs not named are free to jump.
     """
 
+    uses_input_before = True
+
     def __init__(self, weights: Mapping[str, float]) -> None:
         self.weights = dict(weights or {})
         if not self.weights:
@@ -54,6 +56,8 @@ class InputRate(Term):
         return cost
 
     def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
-        Ui = U[self._idx, :]
-        du = ca.horzcat(Ui[:, 0] - ctx.u_prev[self._idx], Ui[:, 1:] - Ui[:, :-1])
+        before = ctx.u_before
+        if before is None:
+            before = ca.horzcat(ctx.u_prev, U[:, :-1])
+        du = U[self._idx, :] - before[self._idx, :]
         return ca.sumsqr(ca.diag(self._w) @ du)
