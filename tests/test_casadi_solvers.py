@@ -21,13 +21,15 @@ from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
 
 GOAL = np.array([1.6, 0.4, 0.0])
-#: (state, detected points, active terms): BUG2's go-to-goal and wall-following sets
+#: (state, detected points, active terms): BUG2's go-to-goal and wall-following sets, with
+#: and without the input rate dU (which multiple shooting lifts into the stages: single
+#: shooting does not, so the two agreeing checks the lifting)
 STATES = [
     (np.array([0.4, 0.8, -1.2]), [[0.45, 0.65], [0.5, 0.62]], {"J1", "J2", "J3", "J4"}),
     (np.array([0.9, 0.7, 0.3]), [[1.1, 0.6 + 0.03 * i] for i in range(8)],
-     {"J1", "J2", "J3", "J4"}),
+     {"J1", "J2", "J3", "J4", "dU"}),
     (np.array([1.0, 0.5, 1.4]), [[1.1, 0.4 + 0.03 * i] for i in range(12)],
-     {"J3", "J4", "J5f"}),
+     {"J3", "J4", "J5f", "dU"}),
 ]
 
 
@@ -214,10 +216,10 @@ def test_fatrop_takes_the_collision_constraint_and_agrees_with_ipopt(zumo_setup)
 
 
 def test_one_nlp_per_active_set_solves_the_same_problem(zumo_setup) -> None:
-    sets = [["J1", "J2", "J3", "J4"], ["J3", "J4", "J5f"]]
+    sets = [["J1", "J2", "J3", "J4"], ["J1", "J2", "J3", "J4", "dU"], ["J3", "J4", "J5f", "dU"]]
     full = _mpc(zumo_setup, solver="fatrop", tol=1e-8)
     split = _mpc(zumo_setup, solver="fatrop", tol=1e-8, active_sets=sets)
-    assert len(split._by_set) == 2 and split.metrics(None)["nlps"] == 3
+    assert len(split._by_set) == 3 and split.metrics(None)["nlps"] == 4
     for x, det, active in STATES:
         full.reset(x)
         split.reset(x)
