@@ -10,6 +10,7 @@ records the status, so a failed solve never ends a run.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -79,9 +80,11 @@ class ControlStep:
 
     @property
     def finite(self) -> bool:
-        """Whether the input and the predicted horizon are all finite numbers."""
-        return bool(np.isfinite(self.u).all() and np.isfinite(self.x_pred).all()
-                    and np.isfinite(self.u_pred).all())
+        """Whether the input and the planned inputs are finite numbers (what is applied now
+        and what a fallback would apply later)."""
+        # a NaN or inf anywhere makes the sum non-finite: cheaper than isfinite().all() for a
+        # controller that steps in microseconds
+        return all(map(math.isfinite, self.u.tolist())) and math.isfinite(self.u_pred.sum())
 
 
 class Controller(ABC):
