@@ -47,6 +47,8 @@ class _Stats:
     ({"return_status": "0", "success": True, "iter_count": 7}, SolveStatus.converged),  # fatrop
     ({"return_status": "1", "success": False}, SolveStatus.truncated),  # fatrop's cap
     ({"return_status": "4", "success": False}, SolveStatus.failed),
+    ({"return_status": "Search_Direction_Becomes_Too_Small", "success": False,
+      "unified_return_status": "SOLVER_RET_UNKNOWN"}, SolveStatus.failed),
     ({"return_status": "Whatever", "success": False,
       "unified_return_status": "SOLVER_RET_SUCCESS"}, SolveStatus.failed),
 ])

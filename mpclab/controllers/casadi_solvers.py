@@ -34,10 +34,12 @@ class QpSolver(StrEnum):
 
 
 #: solvers' own return strings that mean a stop short of the full tolerance with a usable
-#: iterate (an iteration or time cap, IPOPT's reduced "acceptable" tolerance)
+#: iterate (an iteration or time cap, IPOPT's reduced "acceptable" tolerance). Not
+#: sqpmethod's "Search_Direction_Becomes_Too_Small": a stalled line search, whose iterate was
+#: measured violating the car's terminal constraint by 5 m/s (failed, then)
 _TRUNCATED = frozenset({
     "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
-    "Maximum_WallTime_Exceeded", "Search_Direction_Becomes_Too_Small",
+    "Maximum_WallTime_Exceeded",
 })
 #: fatrop's numeric return codes (its ``return_status``) for a cap: 1 is MaxIterExceeded
 _FATROP_TRUNCATED = frozenset({"1"})
