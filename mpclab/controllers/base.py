@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from enum import Enum
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
 from mpclab.status import USABLE, SolveStatus
 
@@ -177,10 +180,29 @@ class Controller(ABC):
         return res
 
 
+def parse_choice(cls: type[Enum], value: Any, key: str) -> Any:
+    """``value`` as a member of the enum ``cls``; a :class:`ConfigError` naming ``key``, the
+    value and the valid choices otherwise."""
+    try:
+        return cls(value.value if isinstance(value, Enum) else value)
+    except ValueError:
+        valid = ", ".join(str(m.value) for m in cls)
+        raise ConfigError(f"{key}: unknown choice {value!r}; valid: {valid}") from None
+
+
+def input_vector(plant: Plant, values: Mapping[str, float] | None, key: str) -> FloatArray:
+    """``{input label: value}`` as an input vector (others 0), clipped to the input bounds."""
+    u = np.zeros(plant.nu)
+    for label, value in dict(values or {}).items():
+        try:
+            u[plant.input_index(label)] = float(value)
+        except ValueError as exc:
+            raise ConfigError(f"{key}: {exc}") from None
+    return plant.clip_input(u)
+
+
 def terminal_rows(plant: Plant, terminal: Any) -> list[tuple[int, float]]:
     """``controller.terminal_constraint`` (``{state label: value}``) as (state index, value)."""
-    from mpclab.errors import ConfigError
-
     rows = []
     for label, value in dict(terminal or {}).items():
         try:

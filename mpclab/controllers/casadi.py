@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any
 
 import casadi as ca
@@ -36,6 +35,8 @@ from mpclab.controllers.base import (
     FloatArray,
     SolveStatus,
     StepContext,
+    input_vector,
+    parse_choice,
     shift,
     terminal_rows,
 )
@@ -164,9 +165,9 @@ class CasadiMPC(Controller):
         active_sets: Sequence[Sequence[str]] = (),
     ) -> None:
         super().__init__(plant, horizon, dt)
-        self.solver = _enum(CasadiSolver, solver, "controller.solver")
-        self.qp_solver = _enum(QpSolver, qp_solver, "controller.qp_solver")
-        self.shooting = _enum(Shooting, shooting, "controller.shooting")
+        self.solver = parse_choice(CasadiSolver, solver, "controller.solver")
+        self.qp_solver = parse_choice(QpSolver, qp_solver, "controller.qp_solver")
+        self.shooting = parse_choice(Shooting, shooting, "controller.shooting")
         if int(max_iter) < 1:
             raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
         if int(sqp_iterations) < 1:
@@ -191,13 +192,7 @@ class CasadiMPC(Controller):
         self.max_iter, self.tol = int(max_iter), float(tol)
         self.warm_start = bool(warm_start)
         self.max_detections = int(max_detections)
-        self._u_guess = np.zeros(plant.nu)
-        for label, value in dict(initial_input or {}).items():
-            try:
-                self._u_guess[plant.input_index(label)] = float(value)
-            except ValueError as exc:
-                raise ConfigError(f"controller.initial_input: {exc}") from None
-        self._u_guess = plant.clip_input(self._u_guess)
+        self._u_guess = input_vector(plant, initial_input, "controller.initial_input")
         self.objective = objective
         objective.bind(plant, "casadi")
         self._names = list(objective.terms)
@@ -364,10 +359,3 @@ class CasadiMPC(Controller):
         return {"solver": self.solver.value, "jit": self.compiled, "nlps": 1 + len(self._by_set),
                 "collision_distance": self.collision_distance}
 
-
-def _enum(cls: type[Enum], value: Any, where: str) -> Any:
-    try:
-        return cls(value.value if isinstance(value, Enum) else value)
-    except ValueError:
-        valid = ", ".join(m.value for m in cls)
-        raise ConfigError(f"{where}: unknown choice {value!r}; valid: {valid}") from None

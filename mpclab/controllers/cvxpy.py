@@ -27,6 +27,8 @@ from mpclab.controllers.base import (
     FloatArray,
     SolveStatus,
     StepContext,
+    input_vector,
+    parse_choice,
     shift,
     terminal_rows,
 )
@@ -145,9 +147,9 @@ class CvxpyMPC(Controller):
         solve_via: SolveVia | str = SolveVia.auto,
     ) -> None:
         super().__init__(plant, horizon, dt)
-        self.solver = _enum(CvxpySolver, solver, "controller.solver").value
+        self.solver = parse_choice(CvxpySolver, solver, "controller.solver").value
         self.warm_start = bool(warm_start)
-        self.sl = _enum(SlMode, sl, "controller.sl")
+        self.sl = parse_choice(SlMode, sl, "controller.sl")
         if int(max_iterations) < 1:
             raise ConfigError(f"controller.max_iterations must be >= 1, got {max_iterations}")
         if not float(tol) > 0:
@@ -158,18 +160,13 @@ class CvxpyMPC(Controller):
             )
         self.max_iterations, self.tol = int(max_iterations), float(tol)
         self.trust_radius = float(trust_radius)
-        self.hessian = _enum(Hessian, hessian, "controller.hessian")
+        self.hessian = parse_choice(Hessian, hessian, "controller.hessian")
         #: the QP's objective is the terms' CVXPY form (else the exact quadratic model)
         self._terms_qp = self.sl is SlMode.one_pass or self.hessian is Hessian.gauss_newton
-        self.linearize_about = _enum(Linearization, linearize_about, "controller.linearize_about")
+        self.linearize_about = parse_choice(Linearization, linearize_about,
+                                            "controller.linearize_about")
         self.solver_options = dict(solver_options or {})
-        self._u_guess = np.zeros(plant.nu)
-        for label, value in dict(initial_input or {}).items():
-            try:
-                self._u_guess[plant.input_index(label)] = float(value)
-            except ValueError as exc:
-                raise ConfigError(f"controller.initial_input: {exc}") from None
-        self._u_guess = plant.clip_input(self._u_guess)
+        self._u_guess = input_vector(plant, initial_input, "controller.initial_input")
         self._u_lo, self._u_hi = np.maximum(plant.u_lb, -_FREE), np.minimum(plant.u_ub, _FREE)
         self.objective = objective
         objective.bind(plant, "cvxpy")
@@ -340,10 +337,3 @@ def _assign(param: cp.Parameter, value: Any) -> None:
         raise ValueError(f"parameter {param.name()}: bad value of shape {value.shape}")
     param.save_value(value)
 
-
-def _enum(cls: type[StrEnum], value: Any, where: str) -> Any:
-    try:
-        return cls(value.value if isinstance(value, StrEnum) else value)
-    except ValueError:
-        valid = ", ".join(m.value for m in cls)
-        raise ConfigError(f"{where}: unknown choice {value!r}; valid: {valid}") from None

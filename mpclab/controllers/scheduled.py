@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import Enum, StrEnum
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -39,6 +39,7 @@ from mpclab.controllers.base import (
     FloatArray,
     SolveStatus,
     StepContext,
+    parse_choice,
 )
 from mpclab.controllers.cvxpy_direct import SolveVia
 from mpclab.controllers.qp_dense import (
@@ -141,8 +142,8 @@ class ScheduledMPC(Controller):
         solve_via: SolveVia | str = SolveVia.auto,
     ) -> None:
         super().__init__(plant, horizon, dt)
-        self.mode = _enum(ScheduleMode, mode, "controller.mode")
-        self.solver = _enum(QPSolver, solver, "controller.solver")
+        self.mode = parse_choice(ScheduleMode, mode, "controller.mode")
+        self.solver = parse_choice(QPSolver, solver, "controller.solver")
         T, nx, nu = self.horizon, plant.nx, plant.nu
         self._nx, self._nu = nx, nu
         if not 1 <= int(control_horizon) <= T:
@@ -406,10 +407,3 @@ def _weights(objective: Objective, plant: Plant) -> tuple[FloatArray, FloatArray
         )
     return q, qT, r
 
-
-def _enum(cls: type[Enum], value: Any, where: str) -> Any:
-    try:
-        return cls(value)
-    except ValueError:
-        valid = ", ".join(m.value for m in cls)
-        raise ConfigError(f"{where}: unknown value {value!r}; valid: {valid}") from None
