@@ -13,6 +13,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from mpclab.registry import register_all
+from mpclab.status import SOLVE_KEYS, SolveStatus
 
 register_all()  # every component's schema must be in the ConfigStore before composing
 # Ray (hydra/launcher=ray_cluster) would otherwise re-create a driver started by `uv run` in
@@ -44,8 +45,8 @@ def main(cfg: DictConfig) -> dict:
             "converged_fraction")
     line = {k: s.get(k) for k in keys}
     # every solve that did not converge, by what it did (truncated, infeasible, failed, ...)
-    line |= {k: n for k, n in s.items() if k.startswith("solves_") and k != "solves_converged"
-             and n}
+    line |= {key: s[key] for st, key in SOLVE_KEYS.items()
+             if st is not SolveStatus.converged and s.get(key)}
     log.info("%s", json.dumps(line))
     log.info("run record: %s", out_dir)
     return s

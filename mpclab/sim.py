@@ -18,7 +18,7 @@ import pandas as pd
 from mpclab.controllers.base import Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
-from mpclab.status import USABLE, SolveStatus
+from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
 from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.scenario import Scenario
 
@@ -225,7 +225,7 @@ def _summary(
         "min_clearance_m": float(np.nanmin(clearance)) if np.isfinite(clearance).any() else None,
         "solver_failures": failures,
         "converged_fraction": counts[SolveStatus.converged] / len(calls) if len(calls) else None,
-        **{f"solves_{st}": n for st, n in counts.items()},
+        **{SOLVE_KEYS[st]: n for st, n in counts.items()},
         "iterations_median": float(np.median(iters)) if len(iters) else None,
         "iterations_max": int(iters.max()) if len(iters) else None,
         "final_state": dict(zip(scen.plant.states, steps.iloc[-1][list(scen.plant.states)]

@@ -27,3 +27,6 @@ class SolveStatus(StrEnum):
 
 #: statuses whose result is applied; anything else triggers the fallback
 USABLE = frozenset({SolveStatus.converged, SolveStatus.truncated})
+
+#: the summary's key for the count of solves with each status (``solves_converged``, ...)
+SOLVE_KEYS = {st: f"solves_{st}" for st in SolveStatus}

@@ -25,7 +25,7 @@ import pandas as pd
 import yaml
 
 from mpclab import record
-from mpclab.status import SolveStatus
+from mpclab.status import SOLVE_KEYS, SolveStatus
 
 #: status of a run folder whose summary.json is missing or unreadable
 INCOMPLETE = "incomplete"
@@ -252,7 +252,7 @@ def group_table(df: pd.DataFrame) -> pd.DataFrame:
 
 
 #: per-status solve counts of summary.json, summed over a group
-SOLVE_COUNTS = tuple(f"solves_{st}" for st in SolveStatus)
+SOLVE_COUNTS = tuple(SOLVE_KEYS.values())
 
 
 def _solve_shares(g: pd.DataFrame) -> dict[str, Any]:
@@ -260,7 +260,8 @@ def _solve_shares(g: pd.DataFrame) -> dict[str, Any]:
     counts = {c: int(pd.to_numeric(g[c], errors="coerce").fillna(0).sum()) if c in g else 0
               for c in SOLVE_COUNTS}
     total = sum(counts.values())
-    return {"converged_fraction": counts["solves_converged"] / total if total else None,
+    converged = counts[SOLVE_KEYS[SolveStatus.converged]]
+    return {"converged_fraction": converged / total if total else None,
             **counts}
 
 

@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 
 from mpclab.controllers.base import (
+    USABLE,
     Controller,
     ControlStep,
     FloatArray,
@@ -210,7 +211,6 @@ class CasadiMPC(Controller):
         self._by_set = {key: self._make_nlp(names, terminal, extra)
                         for key, names in sets.items()}
         self.ocp: OCP = self._full.ocp  # the layout (variables, bounds) all NLPs share
-        self.solver_fn = self._full.fn
         self.compiled = all(n.compiled for n in (self._full, *self._by_set.values()))
         self._nlp = self._full  # the one the current step solves
         self._lam_x: FloatArray | None = None
@@ -310,7 +310,7 @@ class CasadiMPC(Controller):
         self.call_solver()
         status, raw, iters = read_status(nlp.buffer)
         w = io["x"].copy()
-        if status in (SolveStatus.converged, SolveStatus.truncated) and not (
+        if status in USABLE and not (
             np.all(np.isfinite(w)) and self._within_bounds(w)
         ):
             if status is SolveStatus.truncated and np.all(np.isfinite(w)):
@@ -321,7 +321,7 @@ class CasadiMPC(Controller):
                 raw = f"{raw}:clipped"
             else:  # far outside, or "converged" outside: a step whose QP failed silently
                 status, raw = SolveStatus.failed, f"{raw}:out_of_bounds"
-        if status not in (SolveStatus.converged, SolveStatus.truncated):
+        if status not in USABLE:
             self._lam_x = self._lam_g = None
             return self._failed(status, x, raw, iterations=iters)
         ocp = self.ocp

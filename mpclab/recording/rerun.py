@@ -32,6 +32,7 @@ from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.base import Recorder
 from mpclab.recording.rerun_config import config_document
 from mpclab.registry import component
+from mpclab.status import SOLVE_KEYS
 
 if TYPE_CHECKING:  # rerun is imported when a recording starts: importing it is slow
     import rerun as rr
@@ -162,8 +163,8 @@ class RerunRecorder(Recorder):
             return
         self._pose_row(self._k, t, np.asarray(x, dtype=float))
         when = f" at t = {summary['arrival_time_s']:.2f} s" if summary.get("arrived") else ""
-        solves = ", ".join(f"{n} {k.removeprefix('solves_')}" for k, n in summary.items()
-                           if k.startswith("solves_") and n)
+        solves = ", ".join(f"{summary[key]} {st}" for st, key in SOLVE_KEYS.items()
+                           if summary.get(key))
         self._buf.events.append((ent.RUN_LOG, self._k, t, f"run ended: {summary.get('status')}"
                                  f"{when}; solves: {solves or 'none'}", "INFO"))
         self._flush()
