@@ -47,6 +47,8 @@ def main(cfg: DictConfig) -> dict:
     # every solve that did not converge, by what it did (truncated, infeasible, failed, ...)
     line |= {key: s[key] for st, key in SOLVE_KEYS.items()
              if st is not SolveStatus.converged and s.get(key)}
+    if s.get("deadline_misses"):  # sim latency: inputs that came too late to act
+        line["deadline_misses"] = s["deadline_misses"]
     log.info("%s", json.dumps(line))
     log.info("run record: %s", out_dir)
     return s

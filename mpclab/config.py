@@ -31,6 +31,7 @@ class Config:
     objective: Any = MISSING
     supervisor: Any = MISSING
     scenario: Any = MISSING
+    sim: Any = MISSING
     recorder: Any = MISSING
 
 

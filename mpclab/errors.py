@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable, Mapping
+from enum import Enum
 from typing import Any
 
 
@@ -28,3 +29,13 @@ def check_keys(given: Mapping[str, Any], valid: Iterable[str], where: str) -> No
     for key in given:
         if key not in valid:
             raise unknown("key", str(key), valid, where)
+
+
+def parse_choice(cls: type[Enum], value: Any, key: str) -> Any:
+    """``value`` as a member of the enum ``cls``; a :class:`ConfigError` naming ``key``, the
+    value and the valid choices otherwise."""
+    try:
+        return cls(value.value if isinstance(value, Enum) else value)
+    except ValueError:
+        valid = ", ".join(str(m.value) for m in cls)
+        raise ConfigError(f"{key}: unknown choice {value!r}; valid: {valid}") from None

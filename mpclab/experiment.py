@@ -38,7 +38,8 @@ def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
     supervisor = build(cfg.supervisor, "supervisor", plant=plant)
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
-    return Run(plant, controller, scenario, supervisor, recorder)
+    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed), dt=controller.dt)
+    return Run(plant, controller, scenario, supervisor, recorder, world)
 
 
 def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:

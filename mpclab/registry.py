@@ -19,6 +19,7 @@ import pkgutil
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
+from omegaconf import OmegaConf
 
 #: packages whose modules register schemas when imported
 COMPONENT_PACKAGES = (
@@ -35,21 +36,33 @@ COMPONENT_PACKAGES = (
 COMPONENTS: dict[str, dict[str, type]] = {}
 
 
-def register_schema(group: str, name: str, schema: type, component: type | None = None) -> None:
-    """Store ``schema`` (a dataclass) as ``schema/<group>/<name>`` in Hydra's ConfigStore."""
+def register_schema(
+    group: str, name: str, schema: type, component: type | None = None,
+    open_keys: tuple[str, ...] = (),
+) -> None:
+    """Store ``schema`` (a dataclass) as ``schema/<group>/<name>`` in Hydra's ConfigStore.
+
+    ``open_keys``: dotted paths of the schema's dicts that take new keys from the command
+    line without Hydra's ``+`` (``sim.plant_params.r=0.021``); their values keep their type.
+    """
     if not dataclasses.is_dataclass(schema):
         raise TypeError(f"schema for {group}/{name} must be a dataclass, got {schema!r}")
-    ConfigStore.instance().store(group=f"schema/{group}", name=name, node=schema)
+    node: Any = schema
+    if open_keys:
+        node = OmegaConf.structured(schema)
+        for path in open_keys:
+            OmegaConf.set_struct(OmegaConf.select(node, path), False)
+    ConfigStore.instance().store(group=f"schema/{group}", name=name, node=node)
     if component is not None:
         COMPONENTS.setdefault(group, {})[name] = component
 
 
-def component(group: str, name: str, schema: type) -> Any:
+def component(group: str, name: str, schema: type, open_keys: tuple[str, ...] = ()) -> Any:
     """Class decorator: register ``schema`` for the decorated component class."""
 
     def deco(cls: type) -> type:
         cls.registered_name = name  # type: ignore[attr-defined]
-        register_schema(group, name, schema, cls)
+        register_schema(group, name, schema, cls, open_keys)
         return cls
 
     return deco

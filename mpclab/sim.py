@@ -1,8 +1,10 @@
-"""The closed loop: sense -> supervise -> control -> integrate -> log.
+"""The closed loop: measure -> sense -> supervise -> control -> integrate -> log.
 
 :func:`simulate` is the only place where simulated time advances. It times only the
 controller call, stops on arrival, collision, stall, time-out or error, and returns the step
-log as tidy tables plus the summary every run record holds.
+log as tidy tables plus the summary every run record holds. How the simulated world differs
+from the controller's model (latency, noise, disturbance, plant parameters) is the run's
+:class:`~mpclab.world.realism.SimWorld`; without one the loop is the ideal one.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
 from mpclab.supervisors.base import NoSupervisor, Supervisor
+from mpclab.world.realism import SimWorld, Timing
 from mpclab.world.scenario import Scenario
 
 #: run statuses, in the run record's ``status`` field
@@ -35,6 +38,7 @@ class Run:
     scenario: Scenario
     supervisor: Supervisor = field(default_factory=NoSupervisor)
     recorder: Recorder = field(default_factory=Recorder)
+    world: SimWorld | None = None  # None: the ideal loop (sim=nominal)
 
 
 @dataclass
@@ -58,10 +62,12 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
         run.plant, run.controller, run.scenario, run.supervisor, run.recorder
     )
     dt, H = ctrl.dt, ctrl.horizon
-    x = scen.x0.copy()
+    world = run.world or SimWorld(plant, dt=dt)
+    world.reset(plant.nu)
+    x = scen.x0.copy()  # the true state
     ctrl.reset(x)
     sup.reset(x, scen.goal)
-    log = _StepLog(plant, H, ctrl.log_columns)
+    log = _StepLog(plant, H, ctrl.log_columns, world)
     status, error, k = "error", None, 0
     n_max = int(np.floor(scen.t_max / dt + 1e-9))
     rec.start(run)
@@ -80,15 +86,21 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             if k >= n_max:
                 status = "timeout"
                 break
-            ctx = sense(run, t, x)
+            measured = world.measure(x)
+            ctx = sense(run, t, x, measured)
             mode = ctx.mode
             t0 = time.perf_counter()
-            cs = ctrl.step(t, x, ctx)
+            cs = ctrl.step(t, measured, ctx)
             solve_time = time.perf_counter() - t0
+            timing = world.timing(cs.u, cs.u_pred, solve_time)
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step
-            log.add(t, x, cs, solve_time, mode, scen.clearance(x))
+            if world.noisy:
+                cs.info["x_measured"] = measured
+            if world.delayed:
+                cs.info["latency_s"] = timing.latency_s
+            log.add(t, x, cs, solve_time, mode, scen.clearance(x), measured, timing)
             rec.log_step(k, t, x, cs, ctx)
-            x = plant.step(x, cs.u, dt)
+            x = world.advance(x, timing)
             if not np.all(np.isfinite(x)):
                 raise FloatingPointError(f"state became non-finite at t={t + dt:.3f}: {x}")
             k += 1
@@ -99,17 +111,27 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     t_end = k * dt
     log.final(t_end, x, scen.clearance(x))
     steps, horizons = log.tables()
-    summary = _summary(steps, status, error, t_end, scen)
+    summary = _summary(steps, status, error, t_end, scen) | _world_summary(steps, world)
     rec.finish(x, t_end, summary)
     return RunResult(steps, horizons, summary)
 
 
-def sense(run: Run, t: float, x: np.ndarray) -> StepContext:
+def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None) -> StepContext:
     """What the controller is given at ``(t, x)``: sensor readings, the supervisor's choice
-    of objective terms (the supervisor's state advances) and the target over the horizon."""
+    of objective terms (the supervisor's state advances) and the target over the horizon.
+
+    ``x`` is the true state the sensor sees the world from; ``measured`` (default ``x``) the
+    state the robot believes it is in: detected points are placed from it, and the
+    supervisor decides on it. The world's range noise, if any, is added to the readings.
+    """
     scen, ctrl = run.scenario, run.controller
-    detections, ranges = scen.sense(x)
-    mode, active = run.supervisor.update(t, x, detections)
+    measured = x if measured is None else measured
+    if run.world is None:
+        detections, ranges = scen.sense(x)
+    else:
+        detections, ranges = scen.sense(x, believed=measured,
+                                        perturb=run.world.perturb_ranges)
+    mode, active = run.supervisor.update(t, measured, detections)
     return StepContext(
         goal=scen.goal, target=scen.target(t, ctrl.horizon, ctrl.dt), detections=detections,
         ranges=ranges, active=active, mode=mode,
@@ -119,9 +141,17 @@ def sense(run: Run, t: float, x: np.ndarray) -> StepContext:
 class _StepLog:
     """Accumulates one row per controller call (plus the final state) and every horizon."""
 
-    def __init__(self, plant: Plant, horizon: int, extra: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self, plant: Plant, horizon: int, extra: tuple[str, ...] = (),
+        world: SimWorld | None = None,
+    ) -> None:
         self.plant = plant
         self.horizon = horizon
+        #: what the world adds to the log: the measured state, the input's timing
+        self.noisy = world is not None and world.noisy
+        self.delayed = world is not None and world.delayed
+        self.measured: list[np.ndarray] = []
+        self.timing: list[Timing] = []
         self.extra: dict[str, list[Any]] = {key: [] for key in extra}
         self.t: list[float] = []
         self.xs: list[np.ndarray] = []
@@ -132,8 +162,12 @@ class _StepLog:
 
     def add(
         self, t: float, x: np.ndarray, cs: ControlStep, solve_time: float, mode: str,
-        clearance: float,
+        clearance: float, measured: np.ndarray | None = None, timing: Timing | None = None,
     ) -> None:
+        if self.noisy:
+            self.measured.append(np.asarray(measured, dtype=float).copy())
+        if self.delayed:
+            self.timing.append(timing)
         self.t.append(t)
         self.xs.append(x.copy())
         self.us.append(np.asarray(cs.u, dtype=float).copy())
@@ -173,7 +207,35 @@ class _StepLog:
         steps["iterations"] = np.asarray(iters, dtype=float)  # NaN: the solver has no count
         for key, values in self.extra.items():
             steps[key] = pd.Series(values)
+        self._world_columns(steps)
         return steps, self._horizons()
+
+    def _world_columns(self, steps: pd.DataFrame) -> None:
+        """The measured state (``meas_<label>``) and, under latency, when each input acted:
+        ``latency_s``, ``deadline_miss``, ``switch_t`` (NaN: never) and the input in effect
+        after it (``applied_<label>``). NaN in the final row."""
+        p, n = self.plant, len(self.t)
+
+        def padded(values: list[Any], width: int) -> np.ndarray:
+            out = np.full((n, width), np.nan)
+            if values:
+                out[: len(values)] = np.asarray(values, dtype=float).reshape(len(values), width)
+            return out
+
+        if self.noisy:
+            meas = padded(self.measured, p.nx)
+            for i, label in enumerate(p.states):
+                steps[f"meas_{label}"] = meas[:, i]
+        if self.delayed:
+            lat = padded([tm.latency_s for tm in self.timing], 1)[:, 0]
+            miss = np.zeros(n, dtype=bool)
+            miss[: len(self.timing)] = [tm.missed for tm in self.timing]
+            steps["latency_s"] = lat
+            steps["deadline_miss"] = miss
+            steps["switch_t"] = np.where(miss, np.nan, steps["t"].to_numpy() + lat)
+            applied = padded([tm.applied for tm in self.timing], p.nu)
+            for j, label in enumerate(p.inputs):
+                steps[f"applied_{label}"] = applied[:, j]
 
     def _horizons(self) -> pd.DataFrame:
         p, H = self.plant, self.horizon
@@ -232,3 +294,16 @@ def _summary(
                                 .astype(float), strict=True)),
         "error": error,
     }
+
+
+def _world_summary(steps: pd.DataFrame, world: SimWorld) -> dict[str, Any]:
+    """The world the run was simulated in, and how often an input came too late."""
+    out: dict[str, Any] = world.describe()
+    if "latency_s" in steps:
+        lat = steps["latency_s"].dropna().to_numpy() * 1e3
+        out |= {"deadline_misses": int(steps["deadline_miss"].sum()),
+                "latency_median_ms": float(np.median(lat)) if len(lat) else None,
+                "latency_max_ms": float(lat.max()) if len(lat) else None}
+    else:
+        out |= {"deadline_misses": 0, "latency_median_ms": None, "latency_max_ms": None}
+    return out

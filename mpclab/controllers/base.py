@@ -14,7 +14,6 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -178,16 +177,6 @@ class Controller(ABC):
         res = replace(failed, u=u, x_pred=x_pred, u_pred=u_pred, fallback=True)
         self._plan = replace(res)
         return res
-
-
-def parse_choice(cls: type[Enum], value: Any, key: str) -> Any:
-    """``value`` as a member of the enum ``cls``; a :class:`ConfigError` naming ``key``, the
-    value and the valid choices otherwise."""
-    try:
-        return cls(value.value if isinstance(value, Enum) else value)
-    except ValueError:
-        valid = ", ".join(str(m.value) for m in cls)
-        raise ConfigError(f"{key}: unknown choice {value!r}; valid: {valid}") from None
 
 
 def input_vector(plant: Plant, values: Mapping[str, float] | None, key: str) -> FloatArray:

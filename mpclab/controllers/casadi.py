@@ -37,7 +37,6 @@ from mpclab.controllers.base import (
     SolveStatus,
     StepContext,
     input_vector,
-    parse_choice,
     shift,
     terminal_rows,
 )
@@ -50,7 +49,7 @@ from mpclab.controllers.casadi_solvers import (
     nlpsol_options,
     read_status,
 )
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.quiet import c_stdout_silenced

@@ -28,13 +28,12 @@ from mpclab.controllers.base import (
     SolveStatus,
     StepContext,
     input_vector,
-    parse_choice,
     shift,
     terminal_rows,
 )
 from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, QPSolution, SolveVia
 from mpclab.controllers.cvxpy_sl import MAX_RADIUS, Hessian, Point, TrustRegionSL
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, parse_choice
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant

@@ -39,7 +39,6 @@ from mpclab.controllers.base import (
     FloatArray,
     SolveStatus,
     StepContext,
-    parse_choice,
 )
 from mpclab.controllers.cvxpy_direct import SolveVia
 from mpclab.controllers.qp_dense import (
@@ -51,7 +50,7 @@ from mpclab.controllers.qp_dense import (
     condenser,
 )
 from mpclab.controllers.scheduled_grid import TWO_PI, OperatingGrid
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.base import Plant

@@ -13,6 +13,7 @@ and the same functions are what the simulator integrates and what every backend 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
@@ -165,6 +166,19 @@ class Plant:
         for k, uk in enumerate(U):
             X[k + 1] = self.step(X[k], uk, dt)
         return X
+
+    def variant(self, params: Mapping[str, Any], substeps: int = 1, where: str = "params") -> Plant:
+        """This plant with other ``params`` (by name) and ``substeps`` times as many RK4
+        sub-intervals: the same ``rhs`` (a simulated plant that differs from the model).
+        ``self`` when nothing changes."""
+        if not params and substeps == 1:
+            return self
+        check_keys(params, [f.name for f in dataclasses.fields(self.Params)], where=where)
+        other = copy.copy(self)
+        other.params = dataclasses.replace(self.params, **{k: float(v) for k, v in params.items()})
+        other.substeps = self.substeps * int(substeps)
+        other._build()
+        return other
 
     def clip_input(self, u: npt.ArrayLike) -> FloatArray:
         return np.clip(np.asarray(u, dtype=float), self.u_lb, self.u_ub)

@@ -140,6 +140,11 @@ class RerunRecorder(Recorder):
         b.solve_time_ms.append(1e3 * float(step.info.get("solve_time_s", np.nan)))
         b.quality.append(0.0 if step.fallback else 2.0 if step.status == "converged" else 1.0)
         b.cost.append(float(step.cost))
+        measured = step.info.get("x_measured")  # the sim's state noise: what the robot believed
+        if measured is not None:
+            b.measured.append((k, t, np.asarray(measured, dtype=float)[self._pos]))
+        if "latency_s" in step.info:
+            b.latency.append((k, t, 1e3 * float(step.info["latency_s"])))
         b.detections.append(np.asarray(ctx.detections, dtype=float).reshape(-1, 2))
         if self._rays is not None:
             ends = np.asarray(self._rays(x), dtype=float).reshape(-1, 2)
@@ -196,6 +201,7 @@ class RerunRecorder(Recorder):
             (ent.HORIZON, rr.LineStrips2D.from_fields(colors=[_BLUE], radii=[_THIN])),
             (ent.RAYS, rr.LineStrips2D.from_fields(colors=[_YELLOW], radii=[_THIN])),
             (ent.DETECTIONS, rr.Points2D.from_fields(colors=[_ORANGE], radii=[_THICK])),
+            (ent.MEASURED, rr.Points2D.from_fields(colors=[_BLUE], radii=[_THIN])),
             (ent.VEHICLE, vehicle.from_fields(colors=[_ORANGE], radii=[_THICK])),
         ):
             rec.log(path, style, static=True)
@@ -285,6 +291,13 @@ class RerunRecorder(Recorder):
             for path, values in ((ent.SOLVE_TIME, b.solve_time_ms), (ent.SOLVE_QUALITY, b.quality),
                                  (ent.COST, b.cost)):
                 rec.send_columns(path, idx, rr.Scalars.columns(scalars=values))
+        if b.measured:
+            ks, ts, ps = zip(*b.measured, strict=True)
+            rec.send_columns(ent.MEASURED, _indexes(ks, ts),
+                             rr.Points2D.columns(positions=np.stack(ps)))
+        if b.latency:
+            ks, ts, ms = zip(*b.latency, strict=True)
+            rec.send_columns(ent.LATENCY, _indexes(ks, ts), rr.Scalars.columns(scalars=ms))
         for path in (ent.MODE_LOG, ent.SOLVER_LOG, ent.RUN_LOG):
             rows = [e for e in b.events if e[0] == path]
             if rows:
@@ -328,6 +341,8 @@ class _StepBuffer:
         self.solve_time_ms: list[float] = []
         self.quality: list[float] = []  # 2 converged, 1 truncated, 0 fell back
         self.cost: list[float] = []
+        self.measured: list[tuple[int, float, np.ndarray]] = []  # (k, t, position)
+        self.latency: list[tuple[int, float, float]] = []  # (k, t, ms)
         self.events: list[tuple[str, int, float, str, str]] = []
 
 

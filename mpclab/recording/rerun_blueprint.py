@@ -24,6 +24,7 @@ MLINE = "world/mline"  # static LineStrips2D: BUG2's m-line
 REFERENCE_PATH = "world/reference"  # static LineStrips2D: a tracking reference's path
 VEHICLE = "world/vehicle"  # per step Arrows2D (Points2D without a heading)
 PATH = "world/path"  # per step LineStrips2D: one segment from the last position to this one
+MEASURED = "world/measured"  # per step Points2D: the measured position (sim with state noise)
 HORIZON = "world/horizon"  # per step LineStrips2D: the predicted positions, horizon + 1 points
 RAYS = "world/rays"  # per step LineStrips2D: one segment per sensor ray
 DETECTIONS = "world/detections"  # per step Points2D: detected obstacle points
@@ -33,6 +34,7 @@ SOLVER = "series/solver"  # /solve_time_ms, /quality (SOLVE_QUALITY), /cost
 SOLVE_TIME = f"{SOLVER}/solve_time_ms"
 SOLVE_QUALITY = f"{SOLVER}/quality"
 COST = f"{SOLVER}/cost"
+LATENCY = f"{SOLVER}/latency_ms"  # when the input acted after the measurement (sim latency)
 MODE_LOG = "log/mode"  # TextLog: supervisor mode, on each change
 SOLVER_LOG = "log/solver"  # TextLog: solver status, on each change
 RUN_LOG = "log/run"  # TextLog: how the run ended
@@ -73,7 +75,7 @@ def map_view(
         origin=prefix or "/",  # the space above /world, so that world's y flip applies
         contents=f"{prefix}/{WORLD}/**",
         name=name,
-        overrides={f"{prefix}/{PATH}": _history()},
+        overrides={f"{prefix}/{PATH}": _history(), f"{prefix}/{MEASURED}": _history()},
         visual_bounds=visual,
     )
 
@@ -97,8 +99,9 @@ def series_views(
                                                              for p in prefixes])
         for label in inputs
     ]
-    views.append(rrb.TimeSeriesView(name="solve time [ms]", origin="/",
-                                    contents=[f"{p}/{SOLVE_TIME}" for p in prefixes]))
+    views.append(rrb.TimeSeriesView(name="solve time, latency [ms]", origin="/",
+                                    contents=[c for p in prefixes
+                                              for c in (f"{p}/{SOLVE_TIME}", f"{p}/{LATENCY}")]))
     views.append(rrb.TimeSeriesView(name="solve: converged 2, truncated 1, fell back 0",
                                     origin="/",
                                     contents=[f"{p}/{SOLVE_QUALITY}" for p in prefixes]))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,8 +112,14 @@ class Scenario:
         """Range sensor reading per ray ``(n_rays,)``, ``inf`` where nothing is seen."""
         return np.zeros(0)
 
-    def sense(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``(detect(x), ranges(x))`` from one sensor reading (what the loop asks each step)."""
+    def sense(
+        self, x: FloatArray, believed: FloatArray | None = None,
+        perturb: Callable[[FloatArray], FloatArray] | None = None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(detected points, ranges)`` from one sensor reading at the true state ``x`` (what
+        the loop asks each step). ``perturb`` adds the sensor's noise to the ranges;
+        ``believed``, the state the robot thinks it is in, places the points (default ``x``).
+        Without a sensor: nothing seen."""
         return self.detect(x), self.ranges(x)
 
     def collided(self, x: FloatArray) -> bool:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -164,11 +164,18 @@ class ObstacleScenario(Scenario):
         """Range of every ray ``(n_rays,)`` [m], ``inf`` where a ray sees nothing."""
         return self.sensor.distances(self.pose(x), self.obstacles)
 
-    def sense(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Detected points and every ray's range, from one sensor evaluation."""
+    def sense(
+        self, x: FloatArray, believed: FloatArray | None = None,
+        perturb: Callable[[FloatArray], FloatArray] | None = None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Detected points and every ray's range, from one sensor evaluation at the true
+        pose; the points placed from the ``believed`` pose, the ranges ``perturb``-ed."""
         pose = self.pose(x)
         ranges = self.sensor.distances(pose, self.obstacles)
-        return self.sensor.points(pose, ranges)[np.isfinite(ranges)], ranges
+        if perturb is not None:
+            ranges = perturb(ranges)
+        seen_from = pose if believed is None else self.pose(believed)
+        return self.sensor.points(seen_from, ranges)[np.isfinite(ranges)], ranges
 
     def rays(self, x: FloatArray) -> FloatArray:
         """Ray end points ``(n_rays, 2)``: the hit point, or the point at maximum range."""

@@ -1,0 +1,133 @@
+"""Arrival time against compute time, causally: each input acts after its own solve time.
+
+Every backend of Study A (the car) and of Study B (BUG2 on the dead end) runs with
+``sim.latency=measured`` and the solve time scaled by 1, 10 and 100 (a target 10x or 100x
+slower than this machine), beside its ideal loop (``sim=nominal``, scale 0 in the table).
+Study C's scheduled controller runs at 20 ms and at 50 ms with the study's own measured
+microcontroller time (``sim=embedded_stm32``: 33.8 ms at horizon 32). One process, runs one
+after another, so each solve time is measured on an otherwise idle core.
+
+    uv run python experiments/latency/run_latency.py            # results.csv/.md, figure
+    uv run python experiments/latency/run_latency.py --only car  # one study
+
+Writes ``results.csv``, ``results.md`` and ``figures/arrival_vs_latency.png`` here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from mpclab.experiment import build_run, compose  # noqa: E402
+from mpclab.quiet import c_stdout_silenced  # noqa: E402
+from mpclab.sim import simulate  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+SCALES = (1, 10, 100)
+#: study -> backend label -> overrides
+BACKENDS = {
+    "car": {
+        "cvxpy SL converged": ["+experiment=car_cvxpy"],
+        "cvxpy SL one pass (truncated)": ["+experiment=car_cvxpy", "controller.sl=one_pass"],
+        "casadi SQP+qrqp": ["+experiment=car_casadi"],
+        "casadi IPOPT": ["+experiment=car_casadi", "controller=casadi"],
+    },
+    "bug2": {
+        "fatrop (jit)": ["+experiment=zumo_bug2"],
+        "IPOPT": ["+experiment=zumo_bug2", "controller=casadi"],
+        "SQP-RTI 3 it. (truncated)": ["+experiment=zumo_bug2", "controller=casadi_rti",
+                                      "controller.sqp_iterations=3"],
+    },
+}
+#: Study C: label -> overrides (scheduled controller, horizon 32, the turn)
+BICYCLE = {
+    "20 ms, ideal": ["controller.dt=0.02"],
+    "20 ms, embedded_stm32": ["controller.dt=0.02", "sim=embedded_stm32"],
+    "50 ms, ideal": ["controller.dt=0.05"],
+    "50 ms, embedded_stm32": ["controller.dt=0.05", "sim=embedded_stm32"],
+}
+KEYS = ("status", "arrival_time_s", "compute_median_ms", "compute_p95_ms", "latency_median_ms",
+        "deadline_misses", "n_steps", "converged_fraction")
+
+
+def run(overrides: list[str]) -> dict:
+    cfg = compose(["recorder=none", "progress=false", "figures.enabled=false", *overrides])
+    with c_stdout_silenced():
+        result = simulate(build_run(cfg))
+    return {k: result.summary.get(k) for k in (*KEYS, "rms_position", "overshoot_py_pct")}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=["car", "bug2", "bicycle"], nargs="*")
+    a = ap.parse_args()
+    studies = a.only or ["car", "bug2", "bicycle"]
+    rows = []
+    for study in (s for s in studies if s in BACKENDS):
+        for backend, base in BACKENDS[study].items():
+            run(base)  # builds (and compiles) once, untimed
+            for scale in (0, *SCALES):
+                sim = (["sim.latency=measured", f"sim.latency_scale={scale}"] if scale else [])
+                row = {"study": study, "backend": backend, "latency_scale": scale,
+                       **run([*base, *sim])}
+                rows.append(row)
+                print(f"{study:7s} {backend:30s} x{scale:<4d} {row['status']:8s} "
+                      f"arrival {row['arrival_time_s']}  misses {row['deadline_misses']}",
+                      flush=True)
+    if "bicycle" in studies:
+        for label, extra in BICYCLE.items():
+            row = {"study": "bicycle", "backend": f"scheduled H=32 {label}", "latency_scale": 0,
+                   **run(["+experiment=bicycle_scheduled", "scenario=turn", *extra])}
+            rows.append(row)
+            print(f"bicycle {label:30s} {row['status']:8s} rms {row['rms_position']:.3f} m "
+                  f"misses {row['deadline_misses']}", flush=True)
+    df = pd.DataFrame(rows)
+    df.to_csv(HERE / "results.csv", index=False)
+    (HERE / "results.md").write_text(df.to_markdown(index=False, floatfmt=".3g") + "\n")
+    plot(df)
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+def plot(df: pd.DataFrame) -> None:
+    """Arrival time against latency scale, one line per backend; a cross where it failed."""
+    studies = [s for s in ("car", "bug2") if s in set(df["study"])]
+    if not studies:
+        return
+    fig, axes = plt.subplots(1, len(studies), figsize=(5.5 * len(studies), 4), squeeze=False)
+    for ax, study in zip(axes[0], studies, strict=True):
+        part = df[df["study"] == study]
+        for backend, g in part.groupby("backend", sort=False):
+            g = g[g["latency_scale"] > 0]
+            ok = g["status"] == "arrived"
+            x = g["latency_scale"].to_numpy()
+            (line,) = ax.plot(x[ok.to_numpy()], g.loc[ok, "arrival_time_s"], "o-",
+                              label=backend)
+            failed = g[~ok]
+            if len(failed):
+                top = part["arrival_time_s"].max()
+                ax.plot(failed["latency_scale"], [top * 1.1] * len(failed), "x",
+                        color=line.get_color(), markersize=10)
+            nominal = part[(part["backend"] == backend) & (part["latency_scale"] == 0)]
+            if len(nominal) and nominal["status"].iloc[0] == "arrived":
+                ax.axhline(nominal["arrival_time_s"].iloc[0], color=line.get_color(), lw=0.6,
+                           ls=":")
+        ax.set_xscale("log")
+        ax.set_xlabel("latency = measured solve time x scale")
+        ax.set_ylabel("arrival time [s] (x: did not arrive; dotted: ideal loop)")
+        ax.set_title({"car": "Study A: car to the origin", "bug2": "Study B: BUG2, dead end"}
+                     [study])
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    (HERE / "figures").mkdir(exist_ok=True)
+    fig.savefig(HERE / "figures" / "arrival_vs_latency.png", dpi=110)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,268 @@
+"""How the simulated world differs from the controller's model (the ``sim`` config group).
+
+``sim=nominal`` is the ideal loop: the controller sees the true state, its input acts at the
+instant the state was measured, and the simulator integrates the controller's own model.
+:class:`SimWorld` adds, each on its own key:
+
+* **latency** (``latency``: ``none``, ``measured`` or a number of ms; ``latency_scale``): the
+  input computed from the state at ``t_k`` acts from ``t_k + tau``; the input applied before
+  it holds until then, and the step is integrated in two pieces across the switch. A solve
+  whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control period) is a
+  deadline miss: its input never acts, and ``deadline_policy`` says what does (``hold`` the
+  applied input, or ``plan``: the next input of the last plan that met its deadline).
+* **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
+  any plant's, ``noise.range_std``): the controller
+  and the supervisor see a noisy state; range readings are taken from the true pose, get
+  noise, and become obstacle points placed from the *measured* pose.
+* **process disturbance** (``disturbance.state_std.<label>``, per square-root second): a
+  random walk added to the true state, ``N(0, std^2 dt)`` per control period.
+* **model mismatch** (``plant_params.<name>``, ``substeps``): the simulated plant has other
+  parameters (and a finer integrator) than the one the controller predicts with; the same
+  ``rhs``.
+
+Every draw comes from one generator seeded by the run's seed (a stream of its own, so a
+scenario's random layout does not change when noise is switched on).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+
+from mpclab.errors import ConfigError, check_keys, parse_choice
+from mpclab.plants.base import FloatArray, Plant
+from mpclab.registry import component
+
+#: the spawn key of the world's random stream under the run's seed
+_STREAM = 7
+
+
+class Latency(StrEnum):
+    none = "none"
+    measured = "measured"
+    fixed = "fixed"  # given as a number of ms
+
+
+class DeadlinePolicy(StrEnum):
+    hold = "hold"  # the input applied before holds for the period
+    plan = "plan"  # the next input of the last plan that met its deadline
+
+
+@dataclass
+class NoiseConf:
+    state_std: dict[str, float] = field(default_factory=dict)
+    range_std: float = 0.0
+
+
+@dataclass
+class DisturbanceConf:
+    state_std: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class SimConf:
+    _target_: str = "mpclab.world.realism.SimWorld"
+    name: str = "nominal"
+    latency: Any = "none"          # none | measured | a number of ms
+    latency_scale: float = 1.0     # factor on the latency (a slower target)
+    deadline_ms: float | None = None  # default: the control period
+    deadline_policy: str = "hold"  # hold | plan
+    noise: NoiseConf = field(default_factory=NoiseConf)
+    disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
+    plant_params: dict[str, float] = field(default_factory=dict)
+    substeps: int = 1              # RK4 sub-intervals of the simulated plant per step
+
+
+@dataclass
+class Timing:
+    """When a step's input acts: ``latency_s`` after the measurement, or never (a miss)."""
+
+    latency_s: float
+    missed: bool
+    applied: FloatArray  # the input in effect after the switch
+
+
+@component("sim", "sim", SimConf, open_keys=(
+    "plant_params", "noise.state_std", "disturbance.state_std"))
+class SimWorld:
+    """The simulated world around the controller (see the module docstring).
+
+    Parameters
+    ----------
+    plant
+        Injected: the controller's model; the simulated plant is a variant of it.
+    seed
+        Injected: the run's seed.
+    dt
+        Injected: the control period [s].
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        seed: int = 0,
+        dt: float = 0.1,
+        name: str = "nominal",
+        latency: Any = "none",
+        latency_scale: float = 1.0,
+        deadline_ms: float | None = None,
+        deadline_policy: str = "hold",
+        noise: Mapping[str, Any] | None = None,
+        disturbance: Mapping[str, Any] | None = None,
+        plant_params: Mapping[str, float] | None = None,
+        substeps: int = 1,
+    ) -> None:
+        self.name = str(name)
+        self.dt = float(dt)
+        self.latency, self.fixed_latency_s = _latency(latency)
+        self.latency_scale = _positive(latency_scale, "sim.latency_scale")
+        period_ms = 1e3 * self.dt
+        self.deadline_s = (self.dt if deadline_ms is None
+                           else _positive(deadline_ms, "sim.deadline_ms") / 1e3)
+        if self.deadline_s > self.dt * (1 + 1e-9):
+            raise ConfigError(f"sim.deadline_ms must be at most the control period "
+                              f"({period_ms:g} ms), got {deadline_ms}")
+        self.policy = parse_choice(DeadlinePolicy, deadline_policy, "sim.deadline_policy")
+        noise = dict(noise or {})
+        check_keys(noise, [f.name for f in dataclasses.fields(NoiseConf)], "sim.noise")
+        self.state_std = _stds(plant, noise.get("state_std") or {}, "sim.noise.state_std")
+        self.range_std = _nonneg(noise.get("range_std", 0.0), "sim.noise.range_std")
+        disturbance = dict(disturbance or {})
+        check_keys(disturbance, ["state_std"], "sim.disturbance")
+        self.walk_std = _stds(plant, disturbance.get("state_std") or {},
+                              "sim.disturbance.state_std")
+        if int(substeps) < 1:
+            raise ConfigError(f"sim.substeps must be an integer >= 1, got {substeps}")
+        self.substeps = int(substeps)
+        self.plant_params = dict(plant_params or {})
+        self.plant = plant.variant(self.plant_params, self.substeps, where="sim.plant_params")
+        self.rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_STREAM,)))
+        self._plan: FloatArray | None = None  # the inputs of the last plan in time
+        self._plan_age = 0
+
+    # ---------------------------------------------------------------- what it adds
+    @property
+    def noisy(self) -> bool:
+        return bool(self.state_std.any())
+
+    @property
+    def delayed(self) -> bool:
+        return self.latency is not Latency.none
+
+    def reset(self, nu: int) -> None:
+        self._plan, self._plan_age = None, 0
+        self.applied = np.zeros(nu)
+
+    def measure(self, x: FloatArray) -> FloatArray:
+        """The state the controller sees (``x`` itself when there is no state noise)."""
+        if not self.noisy:
+            return x
+        return x + self.state_std * self.rng.standard_normal(x.shape)
+
+    def perturb_ranges(self, ranges: FloatArray) -> FloatArray:
+        """Range readings with the sensor's noise (rays that see nothing stay ``inf``)."""
+        if self.range_std <= 0:
+            return ranges
+        noisy = ranges + self.range_std * self.rng.standard_normal(ranges.shape)
+        return np.where(np.isfinite(ranges), np.maximum(noisy, 0.0), ranges)
+
+    def timing(self, u: FloatArray, u_pred: FloatArray, solve_time_s: float) -> Timing:
+        """When the input ``u`` (first of the plan ``u_pred``) acts, given the solve took
+        ``solve_time_s``."""
+        if self.latency is Latency.none:
+            tau = 0.0
+        elif self.latency is Latency.measured:
+            tau = solve_time_s * self.latency_scale
+        else:
+            tau = self.fixed_latency_s * self.latency_scale
+        if tau <= self.deadline_s:
+            self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
+            return Timing(tau, False, np.asarray(u, dtype=float))
+        self._plan_age += 1
+        held = self.applied
+        if self.policy is DeadlinePolicy.plan and self._plan is not None:
+            if self._plan_age < len(self._plan):
+                held = self._plan[self._plan_age]
+        return Timing(tau, True, held)
+
+    def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
+        """The true state one control period later: the applied input until the switch, the
+        new one after it (a missed deadline: one input for the whole period), then the
+        disturbance."""
+        plant, dt = self.plant, self.dt
+        tau = timing.latency_s
+        if timing.missed or tau <= 0.0:
+            x = plant.step(x, timing.applied, dt)
+        elif tau >= dt:  # exactly at the deadline: the new input acts from the next period
+            x = plant.step(x, self.applied, dt)
+        else:
+            x = plant.step(plant.step(x, self.applied, tau), timing.applied, dt - tau)
+        self.applied = timing.applied
+        if self.walk_std.any():
+            x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
+        return x
+
+    def describe(self) -> dict[str, Any]:
+        """What the run record says of the world (the summary's ``sim_*`` keys)."""
+        return {
+            "sim": self.name,
+            "sim_latency": (f"{1e3 * self.fixed_latency_s:g} ms"
+                            if self.latency is Latency.fixed else self.latency.value),
+            "sim_latency_scale": self.latency_scale,
+            "sim_plant_params": dict(self.plant_params),
+        }
+
+
+def _latency(value: Any) -> tuple[Latency, float]:
+    if isinstance(value, bool):
+        raise ConfigError(f"sim.latency must be none, measured or a number of ms, got {value}")
+    if isinstance(value, int | float):
+        return Latency.fixed, _nonneg(value, "sim.latency") / 1e3
+    text = str(value)
+    try:
+        return Latency.fixed, _nonneg(float(text), "sim.latency") / 1e3
+    except ValueError:
+        pass
+    if text == Latency.fixed.value:
+        raise ConfigError("sim.latency: give the fixed latency as a number of ms, e.g. 33.8")
+    return parse_choice(Latency, text, "sim.latency"), 0.0
+
+
+def _nonneg(value: Any, key: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{key} must be a number >= 0, got {value!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise ConfigError(f"{key} must be a finite number >= 0, got {value}")
+    return v
+
+
+def _positive(value: Any, key: str) -> float:
+    v = _nonneg(value, key)
+    if v == 0:
+        raise ConfigError(f"{key} must be > 0, got {value}")
+    return v
+
+
+def _stds(plant: Plant, given: Mapping[str, Any], key: str) -> FloatArray:
+    """Standard deviations by state label -> a vector over the plant's states. Two roles
+    stand for labels of any plant: ``position`` (both coordinates) and ``heading``; a label
+    given as well wins."""
+    roles = {"position": list(plant.position), "heading": [plant.heading] if plant.heading else []}
+    check_keys(given, [*plant.states, *roles], key)
+    std = np.zeros(plant.nx)
+    for role, labels in roles.items():
+        if role in given:
+            for label in labels:
+                std[plant.state_index(label)] = _nonneg(given[role], f"{key}.{role}")
+    for label, value in given.items():
+        if label not in roles:
+            std[plant.state_index(label)] = _nonneg(value, f"{key}.{label}")
+    return std
