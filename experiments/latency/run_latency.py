@@ -59,9 +59,11 @@ KEYS = ("status", "arrival_time_s", "compute_median_ms", "compute_p95_ms", "late
 
 def run(overrides: list[str]) -> dict:
     cfg = compose(["recorder=none", "progress=false", "figures.enabled=false", *overrides])
+    built = build_run(cfg)
     with c_stdout_silenced():
-        result = simulate(build_run(cfg))
-    return {k: result.summary.get(k) for k in (*KEYS, "rms_position", "overshoot_py_pct")}
+        result = simulate(built)
+    summary = result.summary | built.scenario.metrics(result.steps)
+    return {k: summary.get(k) for k in (*KEYS, "rms_position", "error")}
 
 
 def main() -> None:
@@ -86,7 +88,7 @@ def main() -> None:
             row = {"study": "bicycle", "backend": f"scheduled H=32 {label}", "latency_scale": 0,
                    **run(["+experiment=bicycle_scheduled", "scenario=turn", *extra])}
             rows.append(row)
-            print(f"bicycle {label:30s} {row['status']:8s} rms {row['rms_position']:.3f} m "
+            print(f"bicycle {label:30s} {row['status']:8s} rms {row['rms_position']} m "
                   f"misses {row['deadline_misses']}", flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(HERE / "results.csv", index=False)
