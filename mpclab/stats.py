@@ -1,0 +1,20 @@
+"""Small statistics the tables report: exact binomial intervals for success rates."""
+
+from __future__ import annotations
+
+from scipy.stats import beta
+
+
+def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
+    """The Clopper-Pearson (exact) interval of a success probability from ``successes`` of
+    ``trials``: it covers the true rate with probability at least ``level`` for every rate.
+    ``(nan, nan)`` without trials."""
+    k, n = int(successes), int(trials)
+    if not 0 <= k <= n:
+        raise ValueError(f"successes must be within 0..trials, got {k} of {n}")
+    if n == 0:
+        return float("nan"), float("nan")
+    alpha = 1.0 - float(level)
+    lo = 0.0 if k == 0 else float(beta.ppf(alpha / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1 - alpha / 2, k + 1, n - k))
+    return lo, hi
