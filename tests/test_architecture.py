@@ -191,8 +191,9 @@ def test_composing_imports_only_components() -> None:
     reached = {m for m in modules() for p in COMPONENT_PACKAGES
                if m.startswith(p + ".")}
     above = {m for m in reached if floor(m) > 2}
-    assert above == ALLOWED_REGISTRY_UP, (
-        f"register_all imports modules above the components: {sorted(above)}")
+    new, gone = sorted(above - ALLOWED_REGISTRY_UP), sorted(ALLOWED_REGISTRY_UP - above)
+    assert not new, f"register_all imports modules above the components: {new}"
+    assert not gone, f"fixed, remove from ALLOWED_REGISTRY_UP: {gone}"
 
 
 def test_doc_lists_the_floors() -> None:
