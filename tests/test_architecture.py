@@ -23,7 +23,8 @@ DOC = ROOT / "docs" / "architecture.md"
 #: prefix puts one elsewhere); docs/architecture.md's table lists the same
 FLOORS: dict[int, tuple[str, ...]] = {
     0: ("mpclab", "mpclab.errors", "mpclab.status", "mpclab.lazy", "mpclab.quiet",
-        "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate"),
+        "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate",
+        "mpclab.stats"),
     1: ("mpclab.plants", "mpclab.objectives", "mpclab.approx.features", "mpclab.approx.mlp"),
     2: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recording",
         "mpclab.approx.dataset"),
