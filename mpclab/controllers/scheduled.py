@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from mpclab.codegen.scheduled import QPMethod
 from mpclab.controllers.base import (
     Controller,
     ControlStep,
@@ -50,6 +51,7 @@ from mpclab.controllers.qp_dense import (
     box_qp_active_set,
     condenser,
 )
+from mpclab.controllers.scheduled_c import ScheduledSIL
 from mpclab.controllers.scheduled_grid import TWO_PI, OperatingGrid
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
@@ -91,6 +93,7 @@ class ScheduledConf:
     solver: QPSolver = QPSolver.auto
     solver_options: dict[str, Any] = field(default_factory=dict)
     solve_via: SolveVia = SolveVia.auto
+    codegen: bool = False
 
 
 @component("controller", "scheduled", ScheduledConf)
@@ -122,6 +125,10 @@ class ScheduledMPC(Controller):
     solve_via
         For CLARABEL: ``auto``/``direct`` (the compiled data straight into a persistent
         Clarabel solver) or ``problem`` (``Problem.solve`` every step).
+    codegen
+        Step through the generated C of this controller (compiled with the machine's C
+        compiler, cached; :mod:`mpclab.controllers.scheduled_c`) instead of Python: switched
+        mode without hysteresis, solver ``auto``, ``closed_form`` or ``active_set``.
     """
 
     log_columns = ("op",)
@@ -140,6 +147,7 @@ class ScheduledMPC(Controller):
         solver: QPSolver | str = QPSolver.auto,
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
+        codegen: bool = False,
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.mode = parse_choice(ScheduleMode, mode, "controller.mode")
@@ -187,8 +195,26 @@ class ScheduledMPC(Controller):
             if self.solver in (QPSolver.CLARABEL, QPSolver.OSQP) else None
         )
         self._active: int | None = None
+        self.codegen = bool(codegen)
+        self._sil = self._build_sil() if self.codegen else None
 
     # ------------------------------------------------------------------ construction
+    def _build_sil(self) -> ScheduledSIL:
+        """The generated C of this controller, compiled and loaded (``codegen=true``)."""
+        if self.mode is not ScheduleMode.switched or any(self.grid.hysteresis):
+            margins = dict(zip(self.grid.labels, self.grid.hysteresis, strict=True))
+            raise ConfigError(
+                "controller.codegen=true needs controller.mode=switched without hysteresis "
+                f"(got mode={self.mode.value}, hysteresis={margins})"
+            )
+        if self.solver not in (QPSolver.auto, QPSolver.closed_form, QPSolver.active_set):
+            raise ConfigError(
+                f"controller.codegen=true: controller.solver={self.solver.value} runs through "
+                "CVXPY and has no generated C; valid: auto, closed_form, active_set"
+            )
+        return ScheduledSIL(self, QPMethod.closed_form if self._closed_form
+                            else QPMethod.active_set)
+
     def predictor(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Condensed prediction ``(Px, Pu, pc)`` of the plant linearized at ``(x, u)``."""
         A, B, c = self.plant.F_lin(x, u, self.dt)
@@ -242,6 +268,8 @@ class ScheduledMPC(Controller):
         ref = ctx.target.ravel()
         if self.mode is not ScheduleMode.switched:
             return self._solve_model(x, ref)
+        if self._sil is not None:
+            return self._solve_c(x, ref)
         xl = x.tolist()
         op = self._active = (
             self.grid.switched(xl, self._active) if self._hysteresis else self.grid.nearest(xl)
@@ -273,6 +301,13 @@ class ScheduledMPC(Controller):
         if k:
             X += k * m.x_shift
         return self._result(X, w[nx:-1].copy(), ref, op, u_cost)
+
+    def _solve_c(self, x: FloatArray, ref: FloatArray) -> ControlStep:
+        """The step by the generated C (its status and iteration count kept)."""
+        z, op, X, status, word, iters = self._sil.step(x, ref)
+        self._active = op
+        res = self._result(X, z, ref, op, float(np.dot(self._r_diag, z * z)))
+        return replace(res, status=status, solver_status=word, iterations=iters)
 
     def _solve_model(self, x: FloatArray, ref: FloatArray) -> ControlStep:
         """Interpolated or adaptive mode: a predictor built for this state, then the QP."""
@@ -340,7 +375,8 @@ class ScheduledMPC(Controller):
         ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
         U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
         out: dict[str, Any] = {
-            "schedule_mode": self.mode.value, "n_operating_points": len(self.grid)
+            "schedule_mode": self.mode.value, "n_operating_points": len(self.grid),
+            "codegen": self.codegen,
         }
         if len(ops) < 2:
             return out | {"n_switches": 0}
