@@ -20,15 +20,17 @@ from __future__ import annotations
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import pandas as pd
 
 from mpclab.codegen.cwriter import c_array
+from mpclab.codegen.loader import ScheduledLibrary
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -115,7 +117,8 @@ def cross_build(source: str, precision: Precision, folder: Path,
     subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=folder)
     out = subprocess.run(["arm-none-eabi-size", str(elf)], check=True, capture_output=True,
                          text=True).stdout.splitlines()[1].split()
-    return elf, Footprint(int(out[0]), int(out[1]), int(out[2]), _stack(next(folder.glob("*firmware.su"))))
+    su = next(folder.glob("*firmware.su"))  # GCC names it after the output (and the source)
+    return elf, Footprint(int(out[0]), int(out[1]), int(out[2]), _stack(su))
 
 
 def _stack(su: Path) -> int:
@@ -173,3 +176,59 @@ def _count(log: Path) -> list[int]:
 def step_time_s(instructions: float, cpi: float, clock_hz: float = F401RE_CLOCK_HZ) -> float:
     """The time of ``instructions`` at ``cpi`` cycles each on a ``clock_hz`` core [s]."""
     return instructions * cpi / clock_hz
+
+
+@dataclass(frozen=True)
+class PilCheck:
+    """A controller on the emulated board beside the desktop build of the same C.
+
+    ``footprint`` is the firmware with one recorded state (what a board with the controller
+    alone would hold, plus the harness's buffers of one state and reference); ``steps`` are
+    the board's results on every recorded state; ``desktop`` the desktop C's ``(op, z)``.
+    """
+
+    precision: Precision
+    footprint: Footprint
+    steps: list[PilStep]
+    desktop: list[tuple[int, FloatArray]]
+
+    @property
+    def ops_agree(self) -> bool:
+        return all(s.op == op for s, (op, _) in zip(self.steps, self.desktop, strict=True))
+
+    @property
+    def max_input_difference(self) -> float:
+        """The largest ``|z_board - z_desktop|`` over steps and moves."""
+        return max(float(np.max(np.abs(s.z - z)))
+                   for s, (_, z) in zip(self.steps, self.desktop, strict=True))
+
+    @property
+    def instructions(self) -> list[int]:
+        return [s.instructions for s in self.steps if s.instructions is not None]
+
+    @property
+    def fits_f401re(self) -> bool:
+        return self.footprint.flash <= F401RE_FLASH and self.footprint.ram <= F401RE_RAM
+
+
+def pil_check(library: ScheduledLibrary, x: FloatArray, ref: FloatArray, precision: Precision,
+              folder: Path, count_instructions: bool = True) -> PilCheck:
+    """Cross-build ``library``'s C with the recorded states ``x (n, nx)``, ``ref (n, nref)``,
+    run it under QEMU and set its results beside the desktop library's."""
+    desktop = [library.step(xi, ri)[1:3][::-1] for xi, ri in zip(x, ref, strict=True)]
+    _, footprint = cross_build(harness_source(library.source, x[:1], ref[:1]), precision,
+                               folder / f"{precision}_footprint")
+    elf, _ = cross_build(harness_source(library.source, x, ref), precision,
+                         folder / f"{precision}_run")
+    return PilCheck(precision, footprint, run(elf, count_instructions), desktop)
+
+
+def recorded_states(steps: pd.DataFrame, state_labels: Sequence[str],
+                    target: Callable[[float], FloatArray], n: int) -> tuple[FloatArray, FloatArray]:
+    """``n`` evenly spread controller calls of a run record's ``steps``: the states
+    ``(n, nx)`` and the flattened previewed references ``target(t)`` ``(n, nref)``."""
+    calls = steps[steps["status"] != "final"]
+    rows = calls.iloc[np.linspace(0, len(calls) - 1, n).round().astype(int)]
+    x = rows[list(state_labels)].to_numpy(dtype=float)
+    ref = np.stack([np.asarray(target(float(t))).ravel() for t in rows["t"]])
+    return x, ref
