@@ -92,13 +92,15 @@ def missing_tools() -> list[str]:
     return [t for t in TOOLS if shutil.which(t) is None]
 
 
-def harness_source(controller_c: str, x: FloatArray, ref: FloatArray) -> str:
+def harness_source(controller_c: str, x: FloatArray, ref: FloatArray,
+                   main_c: str | None = None) -> str:
     """The firmware's C: the controller, the recorded states ``x (n, nx)``, ``ref (n, nref)``
-    (as doubles; cast to ``mpc_real`` on the board) and the harness's ``main``."""
+    (as doubles; cast to ``mpc_real`` on the board) and a ``main`` (the PIL harness's unless
+    ``main_c`` is given)."""
     x, ref = np.atleast_2d(x), np.atleast_2d(ref)
     return "\n".join([
         controller_c, f"#define PIL_N {x.shape[0]}", c_array("pil_x", x), c_array("pil_ref", ref),
-        (HARNESS / "main.c").read_text(),
+        (HARNESS / "main.c").read_text() if main_c is None else main_c,
     ])
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
@@ -306,8 +306,8 @@ class ScheduledMPC(Controller):
         """The step by the generated C (its status and iteration count kept)."""
         z, op, X, status, word, iters = self._sil.step(x, ref)
         self._active = op
-        res = self._result(X, z, ref, op, float(np.dot(self._r_diag, z * z)))
-        return replace(res, status=status, solver_status=word, iterations=iters)
+        u_cost = sum(r * v * v for r, v in zip(self._r_diag, z.tolist(), strict=True))
+        return self._result(X, z, ref, op, u_cost, status, word, iters)
 
     def _solve_model(self, x: FloatArray, ref: FloatArray) -> ControlStep:
         """Interpolated or adaptive mode: a predictor built for this state, then the QP."""
@@ -319,7 +319,9 @@ class ScheduledMPC(Controller):
         return self._result(Px @ x + Pu @ z + pc, z, ref, op, float(np.dot(self._r_diag, z * z)))
 
     def _result(
-        self, X: FloatArray, z: FloatArray, ref: FloatArray, op: int, u_cost: float
+        self, X: FloatArray, z: FloatArray, ref: FloatArray, op: int, u_cost: float,
+        status: SolveStatus = SolveStatus.converged, solver_status: str = "",
+        iterations: int | None = None,
     ) -> ControlStep:
         """The step's result; ``u_cost`` is the input part of the cost."""
         nx, nu, T = self._nx, self._nu, self.horizon
@@ -328,8 +330,8 @@ class ScheduledMPC(Controller):
         e *= e
         return ControlStep(
             u=z if self.nz == nu else z[:nu].copy(), x_pred=X.reshape(T + 1, nx),
-            u_pred=u_pred, status=SolveStatus.converged, cost=float(self._wq.dot(e)) + u_cost,
-            info={"op": op},
+            u_pred=u_pred, status=status, cost=float(self._wq.dot(e)) + u_cost,
+            solver_status=solver_status, iterations=iterations, info={"op": op},
         )
 
     def _model(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:

@@ -18,6 +18,7 @@ from mpclab.codegen.loader import DEFAULT_FLAGS, ScheduledLibrary
 from mpclab.codegen.scheduled import (
     STATUS_CONVERGED,
     STATUS_MAX_ITER,
+    STATUS_NOT_POSITIVE_DEFINITE,
     QPMethod,
     ScheduleAxis,
     ScheduledTables,
@@ -28,10 +29,11 @@ from mpclab.status import SolveStatus
 if TYPE_CHECKING:  # annotations only: this module is imported by scheduled.py
     from mpclab.controllers.scheduled import ScheduledMPC
 
-#: what a return code of ``mpc_step`` means: (status, the solver's word)
+#: what a return code of ``mpc_step`` means: (status, the C's word); any other: failed
 C_STATUS = {
-    STATUS_CONVERGED: SolveStatus.converged,
-    STATUS_MAX_ITER: SolveStatus.truncated,  # a feasible iterate, not optimal
+    STATUS_CONVERGED: (SolveStatus.converged, "converged"),
+    STATUS_MAX_ITER: (SolveStatus.truncated, "max_iterations"),  # feasible, not optimal
+    STATUS_NOT_POSITIVE_DEFINITE: (SolveStatus.failed, "not_positive_definite"),
 }
 
 
@@ -71,8 +73,6 @@ class ScheduledSIL:
                                                             SolveStatus, str, int]:
         """``(z, op, X, status, the C's word, iterations)`` for state ``x``, reference ``ref``."""
         rc, z, op, iters = self.library.step(x, ref)
-        status = C_STATUS.get(rc, SolveStatus.failed)
-        word = {STATUS_CONVERGED: "converged", STATUS_MAX_ITER: "max_iterations"}.get(
-            rc, "not_positive_definite")
+        status, word = C_STATUS.get(rc, (SolveStatus.failed, f"code_{rc}"))
         X = self.library.predict(op, x, z)
         return z, op, X, status, word, iters
