@@ -17,7 +17,10 @@ import pytest
 from test_bicycle import controller, ctx, random_target
 
 from mpclab.codegen import build as codegen_build
+from mpclab.codegen.loader import DEFAULT_FLAGS
+from mpclab.codegen.scheduled import QPMethod
 from mpclab.controllers.base import SolveStatus
+from mpclab.controllers.scheduled_c import ScheduledSIL
 from mpclab.errors import ConfigError
 
 pytestmark = pytest.mark.skipif(codegen_build.find_compiler() is None, reason="no C compiler")
@@ -89,3 +92,23 @@ def test_the_compiled_controller_is_cached(tmp_path, monkeypatch) -> None:
     assert len(list(tmp_path.glob("scheduled_*.so"))) == 1
     controller(horizon=9, codegen=True)  # other matrices: another source, another library
     assert len(list(tmp_path.glob("scheduled_*.so"))) == 2
+
+
+def test_a_capped_active_set_is_reported_truncated_not_converged() -> None:
+    """With the iteration cap at 1, steps that need more passes say so."""
+    c = controller(control_horizon=4, codegen=True)
+    capped = ScheduledSIL(c, QPMethod.active_set, (*DEFAULT_FLAGS, "-DMPC_QP_MAX_ITERATIONS=1"))
+    rng = np.random.default_rng(5)
+    seen = set()
+    for _ in range(60):
+        x = _random_state(rng)
+        ref = random_target(rng, x).ravel()
+        _, _, _, full_status, _, iters = c._sil.step(x, ref)
+        _, _, _, status, word, _ = capped.step(x, ref)
+        assert full_status is SolveStatus.converged
+        if iters > 1:
+            assert (status, word) == (SolveStatus.truncated, "max_iterations")
+        else:
+            assert status is SolveStatus.converged
+        seen.add(status)
+    assert seen == {SolveStatus.converged, SolveStatus.truncated}

@@ -8,7 +8,9 @@
 #define MPC_QP_CONVERGED 0
 #define MPC_QP_MAX_ITER 1
 #define MPC_QP_NOT_POSITIVE_DEFINITE 2
-#define MPC_QP_MAX_ITERATIONS 200
+#ifndef MPC_QP_MAX_ITERATIONS
+#define MPC_QP_MAX_ITERATIONS 200 /* box_qp_active_set's max_iter */
+#endif
 
 /* 2 variables in closed form (see box_qp_2's docstring for why clipping to a violated bound's
  * edge is exact); h = (h00, h01, h11). */
