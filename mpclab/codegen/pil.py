@@ -42,10 +42,11 @@ BUILD_FLAGS = ("-O2", "-std=c99", "-ffunction-sections", "-fdata-sections")
 #: the F401RE's memory [bytes] and clock [Hz]
 F401RE_FLASH, F401RE_RAM, F401RE_CLOCK_HZ = 512 * 1024, 96 * 1024, 84e6
 #: cycles per instruction assumed for the time estimate: (low, central, high). Cortex-M4 TRM
-#: (ARM DDI 0439B, table 3-1): most data-processing and single-precision FPU instructions take
-#: 1 cycle, loads 2 (pipelined 1), branches 1 + a 1-3 cycle refill, VDIV/VSQRT 14; the F401RE
-#: runs its flash with 2 wait states at 84 MHz behind ST's ART accelerator (RM0368 sec. 3.4),
-#: which hides them for sequential code and small loops. An assumption, not a measurement.
+#: (ARM DDI 0439B, instruction timings of the core, ch. 3, and the FPU, ch. 7): most
+#: data-processing and single-precision FPU instructions take 1 cycle, loads 2 (pipelined 1),
+#: branches 1 + a 1-3 cycle refill, VDIV/VSQRT 14; the F401RE runs its flash with 2 wait
+#: states at 84 MHz (ST RM0368), hidden for sequential code and small loops by the ART
+#: accelerator. An assumption, not a measurement.
 CPI_RANGE = (1.0, 1.5, 2.0)
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "qemu-system-arm")
 QEMU_BOARD = "netduinoplus2"
