@@ -49,8 +49,11 @@ def source_key(source: str, compiler: str, flags: Sequence[str], extra: Sequence
 
 def compile_shared(
     source: str, prefix: str, flags: Sequence[str], extra_key: Sequence[str] = (),
+    libs: Sequence[str] = (),
 ) -> Path:
-    """The shared object of the C ``source``, compiled once and cached as ``PREFIX_KEY.so``.
+    """The shared object of the C ``source``, compiled once and cached as ``PREFIX_KEY.so``;
+    ``libs`` (``-L``, ``-l``, rpath options) follow the source on the command line and count
+    in the key like the flags.
 
     Raises
     ------
@@ -62,7 +65,7 @@ def compile_shared(
     cc = find_compiler()
     if cc is None:
         raise CompileError("no C compiler found (set CC)")
-    key = source_key(source, cc, flags, extra_key)
+    key = source_key(source, cc, [*flags, *libs], extra_key)
     folder = cache_dir()
     lib = folder / f"{prefix}_{key}.so"
     if lib.exists():
@@ -77,7 +80,7 @@ def compile_shared(
         f.write(source)
     tmp_lib = src_name[:-2] + ".so"
     try:
-        subprocess.run([cc, "-fPIC", "-shared", *flags, src_name, "-o", tmp_lib, "-lm"],
+        subprocess.run([cc, "-fPIC", "-shared", *flags, src_name, "-o", tmp_lib, *libs, "-lm"],
                        check=True, capture_output=True, text=True)
         os.replace(tmp_lib, lib)  # atomic: a reader sees no file or a whole one
         compile_count += 1

@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import tempfile
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
@@ -22,20 +23,26 @@ from mpclab.codegen.build import CompileError, compile_shared
 DEFAULT_FLAGS = ("-O1",)
 
 
+def generated_c(write: Callable[[str], object]) -> str:
+    """The C that ``write(file name)`` (a CasADi ``generate`` method, which writes into the
+    working folder) produces, read back from a temporary folder."""
+    with tempfile.TemporaryDirectory(prefix="mpclab_nlp_") as tmp:
+        cwd = os.getcwd()
+        os.chdir(tmp)
+        try:
+            write("nlp.c")
+        finally:
+            os.chdir(cwd)
+        return (Path(tmp) / "nlp.c").read_text()
+
+
 def compiled_nlp(solver: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS) -> Path | None:
     """The shared library of ``solver``'s NLP functions, compiled once and cached.
 
     None (with a warning) when no C compiler is found or the compile fails: the caller then
     keeps the uncompiled functions.
     """
-    with tempfile.TemporaryDirectory(prefix="mpclab_nlp_") as tmp:
-        cwd = os.getcwd()
-        os.chdir(tmp)  # generate_dependencies writes into the working folder
-        try:
-            solver.generate_dependencies("nlp.c")
-        finally:
-            os.chdir(cwd)
-        source = (Path(tmp) / "nlp.c").read_text()
+    source = generated_c(solver.generate_dependencies)
     try:
         return compile_shared(source, "nlp", flags, extra_key=(ca.__version__,))
     except CompileError as exc:
