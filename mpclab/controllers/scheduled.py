@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.codegen.scheduled import QPMethod
 from mpclab.controllers.base import (
     Controller,
     ControlStep,
@@ -196,25 +195,9 @@ class ScheduledMPC(Controller):
         )
         self._active: int | None = None
         self.codegen = bool(codegen)
-        self._sil = self._build_sil() if self.codegen else None
+        self._sil = ScheduledSIL.of(self) if self.codegen else None
 
     # ------------------------------------------------------------------ construction
-    def _build_sil(self) -> ScheduledSIL:
-        """The generated C of this controller, compiled and loaded (``codegen=true``)."""
-        if self.mode is not ScheduleMode.switched or any(self.grid.hysteresis):
-            margins = dict(zip(self.grid.labels, self.grid.hysteresis, strict=True))
-            raise ConfigError(
-                "controller.codegen=true needs controller.mode=switched without hysteresis "
-                f"(got mode={self.mode.value}, hysteresis={margins})"
-            )
-        if self.solver not in (QPSolver.auto, QPSolver.closed_form, QPSolver.active_set):
-            raise ConfigError(
-                f"controller.codegen=true: controller.solver={self.solver.value} runs through "
-                "CVXPY and has no generated C; valid: auto, closed_form, active_set"
-            )
-        return ScheduledSIL(self, QPMethod.closed_form if self._closed_form
-                            else QPMethod.active_set)
-
     def predictor(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Condensed prediction ``(Px, Pu, pc)`` of the plant linearized at ``(x, u)``."""
         A, B, c = self.plant.F_lin(x, u, self.dt)

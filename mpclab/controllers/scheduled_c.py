@@ -63,6 +63,22 @@ def schedule_tables(ctrl: ScheduledMPC, qp: QPMethod) -> ScheduledTables:
 class ScheduledSIL:
     """The compiled C of a switched scheduled controller, stepping in its place."""
 
+    @classmethod
+    def of(cls, ctrl: ScheduledMPC) -> ScheduledSIL:
+        """The generated C of ``ctrl`` (``codegen=true``), after checking that it has one."""
+        if ctrl.mode != "switched" or any(ctrl.grid.hysteresis):  # StrEnum: equal to values
+            margins = dict(zip(ctrl.grid.labels, ctrl.grid.hysteresis, strict=True))
+            raise ConfigError(
+                "controller.codegen=true needs controller.mode=switched without hysteresis "
+                f"(got mode={ctrl.mode.value}, hysteresis={margins})"
+            )
+        if ctrl.solver not in ("auto", "closed_form", "active_set"):
+            raise ConfigError(
+                f"controller.codegen=true: controller.solver={ctrl.solver.value} runs through "
+                "CVXPY and has no generated C; valid: auto, closed_form, active_set"
+            )
+        return cls(ctrl, QPMethod.closed_form if ctrl._closed_form else QPMethod.active_set)
+
     def __init__(self, ctrl: ScheduledMPC, qp: QPMethod, flags: tuple[str, ...] = DEFAULT_FLAGS):
         try:
             self.library = ScheduledLibrary(schedule_tables(ctrl, qp), flags)
