@@ -142,7 +142,8 @@ def compare(runs: dict, rounds: int) -> pd.DataFrame:
             "median_ms": 1e3 * np.median(t),
             "p95_ms": 1e3 * np.percentile(t, 95),
             "cpu_median_ms": 1e3 * np.median(cpu[name]),
-            "ms/QP": 1e3 * t.sum() / calls["iterations"].fillna(1).sum(),
+            "ms/QP": (1e3 * t.sum() / calls["iterations"].sum()  # none: count unknown
+                      if calls["iterations"].notna().all() else float("nan")),
             "compute/sim": float(np.sum(t)) / rounds / s["sim_time_s"],
             "speed-up (median)": ref_median / np.median(t),
             "speed-up (cpu median)": np.median(cpu[REF]) / np.median(cpu[name]),
