@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mpclab.controllers import casadi_compile
+from mpclab.codegen import build as codegen_build
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.controllers.casadi_ocp import Params
@@ -145,16 +145,16 @@ def _small(**kw) -> CasadiMPC:  # a small NLP: compiles in about a second at -O0
 
 
 def test_jit_compiles_once_and_then_hits_the_cache(tmp_path, monkeypatch) -> None:
-    if casadi_compile.find_compiler() is None:
+    if codegen_build.find_compiler() is None:
         pytest.skip("no C compiler")
     monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path))
-    before = casadi_compile.compile_count
+    before = codegen_build.compile_count
     first = _small(solver="fatrop", jit=True, jit_flags=["-O0"])
-    assert first.compiled and casadi_compile.compile_count == before + 1
+    assert first.compiled and codegen_build.compile_count == before + 1
     (lib,) = tmp_path.glob("nlp_*.so")
     stamp = os.stat(lib).st_mtime_ns
     second = _small(solver="fatrop", jit=True, jit_flags=["-O0"])
-    assert second.compiled and casadi_compile.compile_count == before + 1  # no recompile
+    assert second.compiled and codegen_build.compile_count == before + 1  # no recompile
     assert os.stat(lib).st_mtime_ns == stamp and len(list(tmp_path.iterdir())) == 1
     # the compiled functions solve the same problem as the symbolic ones
     x, goal = np.array([0.4, 0.8, -1.2]), np.array([0.4, 0.4, 0.0])

@@ -108,18 +108,24 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
         "converged NLP, CasADi SQP + qrqp, compiled (car_casadi)": build_run(
             compose(["+experiment=car_casadi", "recorder=none"])),
     }
+    return compare(runs, args.rounds)
+
+
+def compare(runs: dict, rounds: int) -> pd.DataFrame:
+    """Alternate whole runs of ``runs`` for ``rounds`` rounds, pool their per-step times and
+    print the table (speed-ups against the study's program, ``runs[REF]``)."""
     steps: dict[str, list[pd.DataFrame]] = {name: [] for name in runs}
     cpu: dict[str, list[float]] = {name: [] for name in runs}
     for name, run in runs.items():
         cpu_timed(run, cpu[name])
     summaries: dict[str, dict] = {}
     load = os.getloadavg()[0]
-    for r in range(args.rounds):
+    for r in range(rounds):
         for name, run in runs.items():
             res = simulate(run)
             steps[name].append(res.steps[res.steps["status"] != "final"])
             summaries[name] = res.summary
-        print(f"round {r + 1}/{args.rounds} done", file=sys.stderr)
+        print(f"round {r + 1}/{rounds} done", file=sys.stderr)
     rows = []
     ref_median = np.median(pd.concat(steps[REF])["solve_time_s"])
     for name, chunks in steps.items():
@@ -136,8 +142,9 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
             "median_ms": 1e3 * np.median(t),
             "p95_ms": 1e3 * np.percentile(t, 95),
             "cpu_median_ms": 1e3 * np.median(cpu[name]),
-            "ms/QP": 1e3 * t.sum() / calls["iterations"].fillna(1).sum(),
-            "compute/sim": float(np.sum(t)) / args.rounds / s["sim_time_s"],
+            "ms/QP": (1e3 * t.sum() / calls["iterations"].sum()  # none: count unknown
+                      if calls["iterations"].notna().all() else float("nan")),
+            "compute/sim": float(np.sum(t)) / rounds / s["sim_time_s"],
             "speed-up (median)": ref_median / np.median(t),
             "speed-up (cpu median)": np.median(cpu[REF]) / np.median(cpu[name]),
         })

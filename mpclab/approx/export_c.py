@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mpclab.approx.mlp import MLP, Activation
+from mpclab.codegen.cwriter import c_array
 
 _C_ACT = {
     Activation.tanh: "tanh({x})",
@@ -40,18 +41,6 @@ _C_ACT = {
     Activation.logistic: "1.0 / (1.0 + exp(-({x})))",
     Activation.identity: "{x}",
 }
-
-
-def _values(a: np.ndarray) -> str:
-    if a.ndim == 1:
-        return "{" + ", ".join(f"{v:.17g}" for v in a) + "}"
-    return "{\n    " + ",\n    ".join(_values(row) for row in a) + "}"
-
-
-def _array(name: str, a: np.ndarray) -> str:
-    a = np.asarray(a, dtype=float)
-    dims = "".join(f"[{d}]" for d in a.shape)
-    return f"static const double {name}{dims} = {_values(a)};"
 
 
 def to_c(mlp: MLP, name: str = "mpclab_nn") -> str:
@@ -70,9 +59,9 @@ def to_c(mlp: MLP, name: str = "mpclab_nn") -> str:
         "",
     ]
     for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases, strict=True)):
-        lines += [_array(f"{name}_W{i}t", w.T), _array(f"{name}_b{i}", b)]
-    lines += [_array(f"{name}_out_scale", mlp.out_scale),
-              _array(f"{name}_out_offset", mlp.out_offset), ""]
+        lines += [c_array(f"{name}_W{i}t", w.T), c_array(f"{name}_b{i}", b)]
+    lines += [c_array(f"{name}_out_scale", mlp.out_scale),
+              c_array(f"{name}_out_offset", mlp.out_offset), ""]
     lines += [
         f"void {name}(const double in[{up}_N_IN], double out[{up}_N_OUT])",
         "{",

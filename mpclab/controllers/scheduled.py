@@ -49,6 +49,7 @@ from mpclab.controllers.qp_dense import (
     box_qp_active_set,
     condenser,
 )
+from mpclab.controllers.scheduled_c import ScheduledSIL
 from mpclab.controllers.scheduled_grid import TWO_PI, OperatingGrid
 from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
@@ -90,6 +91,7 @@ class ScheduledConf:
     solver: QPSolver = QPSolver.auto
     solver_options: dict[str, Any] = field(default_factory=dict)
     solve_via: SolveVia = SolveVia.auto
+    codegen: bool = False
 
 
 @component("controller", "scheduled", ScheduledConf)
@@ -121,6 +123,10 @@ class ScheduledMPC(Controller):
     solve_via
         For CLARABEL: ``auto``/``direct`` (the compiled data straight into a persistent
         Clarabel solver) or ``problem`` (``Problem.solve`` every step).
+    codegen
+        Step through the generated C of this controller (compiled with the machine's C
+        compiler, cached; :mod:`mpclab.controllers.scheduled_c`) instead of Python: switched
+        mode without hysteresis, solver ``auto``, ``closed_form`` or ``active_set``.
     """
 
     log_columns = ("op",)
@@ -139,6 +145,7 @@ class ScheduledMPC(Controller):
         solver: QPSolver | str = QPSolver.auto,
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
+        codegen: bool = False,
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.mode = parse_choice(ScheduleMode, mode, "controller.mode")
@@ -186,6 +193,8 @@ class ScheduledMPC(Controller):
             if self.solver in (QPSolver.CLARABEL, QPSolver.OSQP) else None
         )
         self._active: int | None = None
+        self.codegen = bool(codegen)
+        self._sil = ScheduledSIL.of(self) if self.codegen else None
 
     # ------------------------------------------------------------------ construction
     def predictor(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -241,6 +250,8 @@ class ScheduledMPC(Controller):
         ref = ctx.target.ravel()
         if self.mode is not ScheduleMode.switched:
             return self._solve_model(x, ref)
+        if self._sil is not None:
+            return self._solve_c(x, ref)
         xl = x.tolist()
         op = self._active = (
             self.grid.switched(xl, self._active) if self._hysteresis else self.grid.nearest(xl)
@@ -273,6 +284,13 @@ class ScheduledMPC(Controller):
             X += k * m.x_shift
         return self._result(X, w[nx:-1].copy(), ref, op, u_cost)
 
+    def _solve_c(self, x: FloatArray, ref: FloatArray) -> ControlStep:
+        """The step by the generated C (its status and iteration count kept)."""
+        z, op, X, status, word, iters = self._sil.step(x, ref)
+        self._active = op
+        u_cost = sum(r * v * v for r, v in zip(self._r_diag, z.tolist(), strict=True))
+        return self._result(X, z, ref, op, u_cost, status, word, iters)
+
     def _solve_model(self, x: FloatArray, ref: FloatArray) -> ControlStep:
         """Interpolated or adaptive mode: a predictor built for this state, then the QP."""
         op = self.grid.nearest(x)
@@ -283,7 +301,9 @@ class ScheduledMPC(Controller):
         return self._result(Px @ x + Pu @ z + pc, z, ref, op, float(np.dot(self._r_diag, z * z)))
 
     def _result(
-        self, X: FloatArray, z: FloatArray, ref: FloatArray, op: int, u_cost: float
+        self, X: FloatArray, z: FloatArray, ref: FloatArray, op: int, u_cost: float,
+        status: SolveStatus = SolveStatus.converged, solver_status: str = "",
+        iterations: int | None = None,
     ) -> ControlStep:
         """The step's result; ``u_cost`` is the input part of the cost."""
         nx, nu, T = self._nx, self._nu, self.horizon
@@ -292,8 +312,8 @@ class ScheduledMPC(Controller):
         e *= e
         return ControlStep(
             u=z if self.nz == nu else z[:nu].copy(), x_pred=X.reshape(T + 1, nx),
-            u_pred=u_pred, status=SolveStatus.converged, cost=float(self._wq.dot(e)) + u_cost,
-            info={"op": op},
+            u_pred=u_pred, status=status, cost=float(self._wq.dot(e)) + u_cost,
+            solver_status=solver_status, iterations=iterations, info={"op": op},
         )
 
     def _model(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -339,7 +359,8 @@ class ScheduledMPC(Controller):
         ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
         U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
         out: dict[str, Any] = {
-            "schedule_mode": self.mode.value, "n_operating_points": len(self.grid)
+            "schedule_mode": self.mode.value, "n_operating_points": len(self.grid),
+            "codegen": self.codegen,
         }
         if len(ops) < 2:
             return out | {"n_switches": 0}

@@ -152,6 +152,11 @@ class OperatingGrid:
         self.periodic_axis = next((i for i, a in enumerate(self.axes) if a.periodic), None)
 
     @property
+    def cell_table(self) -> list[tuple[int, bool, list[float], list[int]]]:
+        """Per axis ``(state index, periodic, cuts, op offsets)``: :meth:`nearest`'s data."""
+        return list(self._cuts)
+
+    @property
     def labels(self) -> list[str]:
         return [a.label for a in self.axes]
 

@@ -1,0 +1,88 @@
+"""Studies A and B from generated C: the CasADi backend's whole solver as CasADi-generated C
+(``controller.codegen=true``) against the same solver driven from Python, and for the car
+against the study's program (a CVXPY problem rebuilt every step), in one run.
+
+    uv run python experiments/embedded/casadi_bench.py [--rounds 5]
+
+Car: whole closed loops of ``car_to_origin`` alternate for ``--rounds`` rounds and per-step
+times (wall clock and this thread's CPU time) are pooled (``compare`` of the car_cvxpy
+benchmark; a generated SQP reports no iteration count, so its QP columns are empty). Rows:
+the study's program (one pass, rebuilt every step: ``experiments/car_cvxpy/bench.py``),
+``car_casadi`` (sqpmethod + qrqp, the NLP's functions compiled: ``jit``), and the same with
+``controller.codegen=true`` (its status by the KKT test) at ``-O1`` and ``-O2``.
+
+Zumo: whole ``zumo_bug2`` runs (fatrop, functions compiled) alternate with the same from
+generated C; per-step times pooled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from mpclab.experiment import build_run, compose
+from mpclab.sim import simulate
+
+_spec = importlib.util.spec_from_file_location(
+    "car_cvxpy_bench", Path(__file__).resolve().parents[1] / "car_cvxpy" / "bench.py")
+car_cvxpy_bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(car_cvxpy_bench)
+REF = car_cvxpy_bench.REF
+
+
+def casadi_run(experiment: str, *overrides: str):
+    return build_run(compose([f"+experiment={experiment}", "recorder=none", *overrides]))
+
+
+def car(rounds: int) -> pd.DataFrame:
+    runs = {
+        REF: car_cvxpy_bench.rebuilt(),
+        "car_casadi: SQP + qrqp, NLP functions compiled (jit, -O1)": casadi_run("car_casadi"),
+        "car_casadi codegen=true: whole solver as generated C (-O1)": casadi_run(
+            "car_casadi", "controller.codegen=true"),
+        "car_casadi codegen=true: whole solver as generated C (-O2)": casadi_run(
+            "car_casadi", "controller.codegen=true", "controller.jit_flags=[-O2]"),
+    }
+    return car_cvxpy_bench.compare(runs, rounds)
+
+
+def zumo(rounds: int) -> pd.DataFrame:
+    runs = {"zumo_bug2: fatrop, NLP functions compiled (jit)": casadi_run("zumo_bug2"),
+            "zumo_bug2 codegen=true: fatrop from generated C": casadi_run(
+                "zumo_bug2", "controller.codegen=true")}
+    times: dict[str, list[np.ndarray]] = {name: [] for name in runs}
+    load = os.getloadavg()[0]
+    for _ in range(rounds):
+        for name, run in runs.items():
+            res = simulate(run)
+            calls = res.steps[res.steps["status"] != "final"]
+            times[name].append(calls["solve_time_s"].to_numpy())
+            summary = res.summary
+            print(f"{name}: {summary['status']}, converged {summary['converged_fraction']}",
+                  flush=True)
+    base = np.median(np.concatenate(times[next(iter(runs))]))
+    table = pd.DataFrame([{
+        "controller": name, "median_ms": 1e3 * np.median(np.concatenate(t)),
+        "p95_ms": 1e3 * np.percentile(np.concatenate(t), 95),
+        "speed-up (median)": base / np.median(np.concatenate(t)),
+    } for name, t in times.items()])
+    print(table.to_markdown(index=False, floatfmt=".3g"))
+    print(f"load average (1 min): {load:.2f} before, {os.getloadavg()[0]:.2f} after")
+    return table
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=5)
+    args = ap.parse_args(argv)
+    car(args.rounds)
+    zumo(args.rounds)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""Compile C into a shared object once, cached on disk by a hash of what shaped it.
+
+The library is named by a hash of the C source text, the compiler, its flags and any extra
+key (the CasADi version for CasADi's generated code) in the cache folder (``$MPCLAB_CACHE``,
+else ``~/.cache/mpclab``), so only the first build pays the compile. It is compiled under a
+temporary name and renamed into place: parallel sweep workers that compile the same source at
+once each write a whole file, and readers never see a partial one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+#: libraries compiled by this process (a cache hit does not count): for tests and reports
+compile_count = 0
+
+
+class CompileError(RuntimeError):
+    """No C compiler, an unwritable cache, or a failed compile; the message says which."""
+
+
+def cache_dir() -> Path:
+    """Where compiled libraries are kept: ``$MPCLAB_CACHE`` or ``~/.cache/mpclab``."""
+    root = os.environ.get("MPCLAB_CACHE") or Path.home() / ".cache" / "mpclab"
+    return Path(root)
+
+
+def find_compiler() -> str | None:
+    """The C compiler: ``$CC`` if set, else the first of gcc, cc, clang on the path."""
+    names = [os.environ["CC"]] if os.environ.get("CC") else ["gcc", "cc", "clang"]
+    for name in names:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def source_key(source: str, compiler: str, flags: Sequence[str], extra: Sequence[str] = ()) -> str:
+    """The cache key of a build: a hash of the source, the compiler's name, flags and extras."""
+    text = "\n".join([source, Path(compiler).name, *flags, *extra])
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def compile_shared(
+    source: str, prefix: str, flags: Sequence[str], extra_key: Sequence[str] = (),
+    libs: Sequence[str] = (),
+) -> Path:
+    """The shared object of the C ``source``, compiled once and cached as ``PREFIX_KEY.so``;
+    ``libs`` (``-L``, ``-l``, rpath options) follow the source on the command line and count
+    in the key like the flags.
+
+    Raises
+    ------
+    CompileError
+        When no C compiler is found, the cache folder cannot be written, or the compile fails
+        (the compiler's message is kept).
+    """
+    global compile_count
+    cc = find_compiler()
+    if cc is None:
+        raise CompileError("no C compiler found (set CC)")
+    key = source_key(source, cc, [*flags, *libs], extra_key)
+    folder = cache_dir()
+    lib = folder / f"{prefix}_{key}.so"
+    if lib.exists():
+        return lib
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, src_name = tempfile.mkstemp(prefix=f".{prefix}_{key}.", suffix=".c", dir=folder)
+    except OSError as exc:
+        raise CompileError(f"cannot write the compile cache {folder} ({exc}; set "
+                           "MPCLAB_CACHE)") from None
+    with os.fdopen(fd, "w") as f:
+        f.write(source)
+    tmp_lib = src_name[:-2] + ".so"
+    try:
+        subprocess.run([cc, "-fPIC", "-shared", *flags, src_name, "-o", tmp_lib, *libs, "-lm"],
+                       check=True, capture_output=True, text=True)
+        os.replace(tmp_lib, lib)  # atomic: a reader sees no file or a whole one
+        compile_count += 1
+    except subprocess.CalledProcessError as exc:
+        raise CompileError(f"compiling failed ({exc.stderr.strip()[:300]})") from None
+    finally:
+        for leftover in (src_name, tmp_lib):
+            Path(leftover).unlink(missing_ok=True)
+    return lib

@@ -1,0 +1,77 @@
+"""PIL: the scheduled controller's generated C on an emulated Cortex-M4F (QEMU netduinoplus2).
+
+Needs Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (``.ci/run``
+installs them); skipped, naming what is missing, without them. About 5 s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from test_bicycle import controller
+
+from conftest import compose_cfg
+from mpclab.codegen import pil
+from mpclab.experiment import build_run
+from mpclab.sim import simulate
+
+MISSING = pil.missing_tools()
+pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"PIL needs {', '.join(MISSING)} "
+                                "(Debian: gcc-arm-none-eabi libnewlib-arm-none-eabi "
+                                "qemu-system-arm; .ci/run installs them)")
+
+#: board against desktop: the double build is the same IEEE arithmetic in the same order (its
+#: doubles in libgcc's software routines); the single build rounds every table and operation
+#: to float, on inputs of order 1
+TOL = {pil.Precision.double: 1e-12, pil.Precision.single: 1e-3}
+
+COUNTED = """\
+void pil_puts(const char *s);
+__attribute__((noinline)) void pil_begin(void) { __asm__ volatile("" ::: "memory"); }
+__attribute__((noinline)) void pil_end(void) { __asm__ volatile("" ::: "memory"); }
+int main(void)
+{
+    pil_begin();
+    __asm__ volatile(".rept 100\\n\\tnop\\n\\t.endr\\n\\tmovs r0, #0\\n\\tmovs r1, #10\\n"
+                     "1:\\n\\tadds r0, r0, #1\\n\\tcmp r0, r1\\n\\tbne 1b" ::: "r0", "r1", "cc");
+    pil_end();
+    pil_puts("00 00 0000 0000000000000000\\ndone\\n");
+    return 0;
+}
+"""
+
+
+def test_the_instruction_count_is_exact(tmp_path) -> None:
+    """100 nops, 2 moves and a 10-pass loop of 3 instructions: 132 instructions."""
+    elf, _ = pil.cross_build(COUNTED, pil.Precision.single, tmp_path)
+    (step,) = pil.run(elf, count_instructions=True)
+    assert step.instructions == 100 + 2 + 10 * 3
+
+
+@pytest.fixture(scope="module")
+def recorded() -> tuple[np.ndarray, np.ndarray]:
+    """12 controller calls of a whole closed loop (every heading): states and previews."""
+    cfg = compose_cfg(["+experiment=bicycle_scheduled", "scenario=regular_circle_turn",
+                       "recorder=none", "progress=false", "figures.enabled=false"])
+    run = build_run(cfg)
+    steps: pd.DataFrame = simulate(run).steps
+    ctrl = run.controller
+    return pil.recorded_states(
+        steps, run.plant.states, lambda t: run.scenario.target(t, ctrl.horizon, ctrl.dt), 12)
+
+
+@pytest.mark.parametrize("precision", list(pil.Precision))
+def test_pil_on_the_emulated_board_matches_the_desktop_c(recorded, precision, tmp_path) -> None:
+    """Horizon 32, control horizon 1, all 8 operating points: fits the F401RE, gives the
+    desktop C's moves, and its instruction count puts a step well inside the 20 ms sample."""
+    x, ref = recorded
+    sil = controller(horizon=32, control_horizon=1, codegen=True)._sil
+    check = pil.pil_check(sil.library, x, ref, precision, tmp_path)
+    assert len(check.steps) == len(x) and check.ops_agree
+    assert len({s.op for s in check.steps}) >= 4
+    assert all(s.code == 0 for s in check.steps)
+    assert check.max_input_difference <= TOL[precision]
+    assert check.fits_f401re
+    worst = pil.step_time_s(max(check.instructions), cpi=pil.CPI_RANGE[-1])
+    assert 0 < worst < 0.020
