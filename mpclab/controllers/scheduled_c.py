@@ -9,7 +9,7 @@ controller step through it instead of its Python solver.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -26,8 +26,9 @@ from mpclab.codegen.scheduled import (
 from mpclab.errors import ConfigError
 from mpclab.status import SolveStatus
 
-if TYPE_CHECKING:  # annotations only: this module is imported by scheduled.py
-    from mpclab.controllers.scheduled import ScheduledMPC
+#: a :class:`~mpclab.controllers.scheduled.ScheduledMPC` (which imports this module, so it
+#: is not imported here: the generated C sits below the controller it stands in for)
+ScheduledMPC = Any
 
 #: what a return code of ``mpc_step`` means: (status, the C's word); any other: failed
 C_STATUS = {
