@@ -11,6 +11,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import record
+from mpclab.errors import ConfigError
 from mpclab.instantiate import build
 from mpclab.sim import Run, RunResult, simulate
 
@@ -30,13 +31,20 @@ def compose(overrides: Sequence[str] = ()) -> DictConfig:
 
 
 def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
-    """Instantiate plant, objective, controller, scenario, supervisor and recorder."""
+    """Instantiate plant, objective, scenario, supervisor, controller and recorder.
+
+    The controller comes after the others: it is the expensive one to build (a CasADi NLP
+    compiles), so bad input anywhere else is refused before it.
+    """
+    if cfg.seed < 0:
+        raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)
     plant = build(cfg.plant, "plant")
     objective = build(cfg.objective, "objective")
-    controller = build(cfg.controller, "controller", plant=plant, objective=objective)
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
-    supervisor = build(cfg.supervisor, "supervisor", plant=plant)
+    supervisor = build(cfg.supervisor, "supervisor", plant=plant, objective=objective)
+    controller = build(cfg.controller, "controller", plant=plant, objective=objective,
+                       scenario=scenario)
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed), dt=controller.dt)
     return Run(plant, controller, scenario, supervisor, recorder, world)

@@ -14,7 +14,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from mpclab.errors import ConfigError, check_keys
+from mpclab.errors import ConfigError, bad_input_message, check_keys
 
 _HYDRA_KEYS = {"_target_", "_convert_", "_recursive_", "_partial_", "_args_"}
 
@@ -60,7 +60,8 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
     try:
         return instantiate(node, _convert_="all", **deps)
     except InstantiationException as exc:
-        # our own errors already say what was wrong and where: show them, not Hydra's wrapper
-        if isinstance(exc.__cause__, ConfigError):
-            raise exc.__cause__ from None
-        raise
+        # the cause, keyed by where it happened, not Hydra's wrapper; a bug keeps its traceback
+        message = bad_input_message(exc)
+        if message is None:
+            raise
+        raise ConfigError(message) from exc
