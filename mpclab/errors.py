@@ -94,7 +94,7 @@ def bad_input_message(exc: BaseException) -> str | None:
     if isinstance(exc, yaml.YAMLError):
         return yaml_message(exc)
     if isinstance(exc, OSError) and exc.filename is not None:
-        return f"cannot use {exc.filename}: {exc.strerror or exc}"
+        return f"{exc.strerror or exc}: {exc.filename}"
     return None
 
 
@@ -106,7 +106,8 @@ def yaml_message(exc: yaml.YAMLError) -> str:
     what = f"{context}: {problem}" if context else problem
     if mark is None:
         return f"YAML syntax error: {what}"
-    return f"YAML syntax error in {mark.name}, line {mark.line + 1}, column {mark.column + 1}: {what}"
+    where = f"{mark.name}, line {mark.line + 1}, column {mark.column + 1}"
+    return f"YAML syntax error in {where}: {what}"
 
 
 def _instantiation_message(exc: InstantiationException) -> str | None:
