@@ -128,10 +128,10 @@ def cli(argv: Sequence[str] | None = None) -> int:
         else:
             os.environ[_FULL_ERROR] = user_full_error
     # outside the handlers, so that a re-raised error is not shown as raised in one
-    return 0 if error is None else _report(error, user_full_error is not None)
+    return 0 if error is None else report(error, user_full_error is not None)
 
 
-def _report(exc: Exception, full_error: bool) -> int:
+def report(exc: Exception, full_error: bool) -> int:
     """Write ``exc`` for the user: one message for bad input, a traceback for a bug."""
     if isinstance(exc, RunFailed):
         sys.stderr.write(f"mpclab: {exc}\n")

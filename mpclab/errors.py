@@ -127,7 +127,7 @@ def _instantiation_message(exc: InstantiationException) -> str | None:
     if inner is None:
         if not isinstance(cause, ValueError | TypeError):
             return None  # a bug in a constructor: its traceback says more than a message
-        inner = f"{type(cause).__name__}: {cause}"
+        inner = str(cause) if isinstance(cause, ValueError) else f"{type(cause).__name__}: {cause}"
     if full_key and not inner.startswith(full_key.split(".")[0]):
         inner = f"{full_key}: {inner}"
     return inner
