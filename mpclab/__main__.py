@@ -105,6 +105,8 @@ def cli(argv: Sequence[str] | None = None) -> int:
     """
     user_full_error = os.environ.get(_FULL_ERROR)
     saved_argv = sys.argv
+    root = logging.getLogger()
+    saved_logging = (list(root.handlers), root.level)  # Hydra configures the root logger
     if argv is not None:
         sys.argv = [saved_argv[0] if saved_argv else "mpclab", *argv]
     os.environ[_FULL_ERROR] = "1"
@@ -123,6 +125,11 @@ def cli(argv: Sequence[str] | None = None) -> int:
         error = exc
     finally:
         sys.argv = saved_argv
+        for handler in root.handlers:
+            if handler not in saved_logging[0]:
+                handler.close()
+        root.handlers[:] = saved_logging[0]
+        root.setLevel(saved_logging[1])
         if user_full_error is None:
             os.environ.pop(_FULL_ERROR, None)
         else:
