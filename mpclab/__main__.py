@@ -23,6 +23,7 @@ from omegaconf import DictConfig
 
 from mpclab.errors import bad_input_message
 from mpclab.registry import register_all
+from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
 
 register_all()  # every component's schema must be in the ConfigStore before composing
@@ -80,7 +81,11 @@ def _task(cfg: DictConfig) -> dict:
 
         s = run_job(cfg, out_dir, list(hc.overrides.task), dict(hc.runtime.choices))
     else:
-        s = run_experiment(cfg, out_dir).summary
+        try:
+            s = run_experiment(cfg, out_dir).summary
+        except RunInterrupted as exc:  # its partial record is written: say where
+            exc.out_dir = out_dir
+            raise
     keys = ("status", "arrival_time_s", "n_steps", "compute_median_ms", "rtf", "solver_failures",
             "converged_fraction")
     line = {k: s.get(k) for k in keys}
@@ -115,9 +120,10 @@ def cli(argv: Sequence[str] | None = None) -> int:
         main()
     except _TaskError as wrapped:
         error = wrapped.error
-    except KeyboardInterrupt:
-        sys.stderr.write("mpclab: interrupted; a single run's partial record (status "
-                         "'interrupted') is in its output folder\n")
+    except KeyboardInterrupt as exc:
+        where = getattr(exc, "out_dir", None)
+        sys.stderr.write("mpclab: interrupted" + (
+            f"; the steps so far are in {where} (status 'interrupted')\n" if where else "\n"))
         return EXIT_INTERRUPTED
     except SystemExit as exc:  # --help, --cfg, Hydra's own usage errors
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
