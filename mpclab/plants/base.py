@@ -197,8 +197,14 @@ class Plant:
             )
         valid = [f.name for f in dataclasses.fields(cls.Params)]
         check_keys(params, valid, where=f"plant {cls.__name__} params")
-        # every plant parameter is a physical size (length, mass, stiffness, ...): > 0
-        return cls.Params(**{k: number(v, f"params.{k}", above=0) for k, v in params.items()})
+        # a physical parameter is a finite number >= 0; one whose default is > 0 (a length, a
+        # mass, a stiffness) must stay > 0, one that may vanish (a drag) defaults to 0
+        defaults = cls.Params()
+        return cls.Params(**{
+            k: number(v, f"params.{k}", **({"above": 0} if getattr(defaults, k) > 0
+                                          else {"at_least": 0}))
+            for k, v in params.items()
+        })
 
     @staticmethod
     def _bounds(
