@@ -10,7 +10,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import record
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.instantiate import build
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
@@ -33,8 +33,8 @@ def compose(overrides: Sequence[str] = ()) -> DictConfig:
 def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
     """Instantiate plant, objective, scenario, supervisor, controller and recorder.
 
-    The controller comes after the others: it is the expensive one to build (a CasADi NLP
-    compiles), so bad input anywhere else is refused before it.
+    The controller comes after the others but the recorder: it is the expensive one to
+    build (a CasADi NLP compiles), so bad input anywhere else is refused before it.
     """
     if cfg.seed < 0:
         raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
@@ -43,10 +43,11 @@ def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
     objective = build(cfg.objective, "objective")
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
     supervisor = build(cfg.supervisor, "supervisor", plant=plant, objective=objective)
+    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed),
+                  dt=number(cfg.controller.dt, "controller.dt", above=0))
     controller = build(cfg.controller, "controller", plant=plant, objective=objective,
                        scenario=scenario)
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
-    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed), dt=controller.dt)
     return Run(plant, controller, scenario, supervisor, recorder, world)
 
 
