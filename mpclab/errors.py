@@ -16,7 +16,7 @@ from enum import Enum
 from typing import Any
 
 import yaml
-from hydra.errors import CompactHydraException, InstantiationException
+from hydra.errors import CompactHydraException, InstantiationException, MissingConfigException
 from omegaconf.errors import OmegaConfBaseException
 
 
@@ -81,6 +81,11 @@ def bad_input_message(exc: BaseException) -> str | None:
         return _instantiation_message(exc)
     if isinstance(exc, ConfigError):
         return str(exc)
+    if isinstance(exc, MissingConfigException) and exc.options:  # an unknown choice
+        name = str(exc.missing_cfg_file or "").rsplit("/", 1)[-1]
+        close = difflib.get_close_matches(name, list(exc.options), n=1)
+        hint = f" Did you mean {close[0]!r}?" if close else ""
+        return f"{str(exc).strip().splitlines()[0]}.{hint} Valid: {', '.join(exc.options)}"
     if isinstance(exc, CompactHydraException):  # composition: the key and what is valid
         cause = exc.__cause__
         text = str(exc)
@@ -128,9 +133,14 @@ def _instantiation_message(exc: InstantiationException) -> str | None:
         if not isinstance(cause, ValueError | TypeError):
             return None  # a bug in a constructor: its traceback says more than a message
         inner = str(cause) if isinstance(cause, ValueError) else f"{type(cause).__name__}: {cause}"
-    if full_key and not inner.startswith(full_key.split(".")[0]):
+    if full_key and not inner.startswith(_TOP_LEVEL_KEYS):  # say where, unless it does
         inner = f"{full_key}: {inner}"
     return inner
+
+
+#: the composed config's top-level keys: a message starting with one already says where
+_TOP_LEVEL_KEYS = ("plant", "controller", "objective", "supervisor", "scenario", "recorder",
+                   "sim", "seed")
 
 
 def _trim(text: str) -> str:

@@ -8,6 +8,7 @@ given keys with the target's signature, so a typo names the key, its path and th
 from __future__ import annotations
 
 import inspect
+import pydoc
 from typing import Any
 
 from hydra.errors import InstantiationException
@@ -34,9 +35,12 @@ def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
 def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
     target = node["_target_"]
     try:
-        obj = get_object(target)
-    except Exception as exc:  # ImportError, AttributeError wrapped by Hydra
-        raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc})") from exc
+        obj = pydoc.locate(str(target))  # None when not found (Hydra's get_object logs it)
+    except pydoc.ErrorDuringImport as exc:  # the module is there but fails to import
+        raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc.value})") from exc
+    if obj is None:
+        raise ConfigError(f"{path}._target_: cannot import {target!r}: no such module, class "
+                          "or function")
     sig = inspect.signature(obj)
     if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
         return

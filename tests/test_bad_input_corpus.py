@@ -68,7 +68,7 @@ CASES: list[tuple[list[str], list[str]]] = [
     ([CAR, "objective.terms.tracking.input_weights.a=-1"], ["input_weights.a", "-1"]),
     ([CAR, "objective.terms.tracking.input_weights.a=.nan"], ["input_weights.a", "nan"]),
     ([CAR, "+objective.terms.tracking.stat_weights={px: 1}"], ["stat_weights", "state_weights"]),
-    ([CAR, "+objective.terms.tracking.state_weights.speed=1"], ["speed"]),
+    ([CAR, "+objective.terms.tracking.state_weights.speed=1"], ["'tracking'", "speed"]),
     ([BUG2, "objective.terms.J1.C1=high"], ["objective.terms.J1", "C1", "high"]),
     ([BUG2, "objective.terms.J1.C1=nan"], ["C1", "nan"]),
     ([BUG2, "objective.terms.J1.C1=inf"], ["C1", "inf"]),
@@ -84,9 +84,9 @@ CASES: list[tuple[list[str], list[str]]] = [
     ([BUG2, "objective.terms.dU.weights.u1=nan"], ["weights.u1", "nan"]),
     ([BUG2, "objective.terms.dU.weights.u2=-1"], ["weights.u2", "-1"]),
     ([BUG2, "objective.terms.J2.input_weights.u1=nan"], ["input_weights.u1", "nan"]),
-    ([BUG2, "objective.terms.J1.eps=0"], ["eps", "0"]),
+    ([BUG2, "+objective.terms.J1.eps=0"], ["objective.terms.J1", "eps", "0"]),
     ([CAR, "objective.terms.tracking._target_=mpclab.nothing.Here"],
-     ["_target_", "mpclab.nothing.Here"]),
+     ["objective.terms.tracking._target_", "mpclab.nothing.Here"]),
     # ---- a plant that does not match the objective or the backend
     ([CAR, "objective=zumo_potential"], ["cvxpy"]),
     ([BICYCLE, "objective=car_quadratic"], ["phi"]),
@@ -221,6 +221,7 @@ def test_the_command_line_gives_the_same_message(case, capsys, tmp_path: Path) -
 
 def test_the_corpus_is_large_enough() -> None:
     assert len(CASES) + len(FILE_CASES) >= 80
+    assert len({_id(c) for c in CASES}) == len(CASES)  # one entry per case in `checked`
 
 
 # ---- broken files: YAML syntax, NN weights cut short or of something else

@@ -172,6 +172,7 @@ class MLP:
         except (ValueError, KeyError, EOFError, OSError, zipfile.BadZipFile) as exc:
             # not an npz (a pickle, text), cut short, or an npz of something else
             why = f"missing array {exc}" if isinstance(exc, KeyError) else str(exc) or repr(exc)
+            why = why.split(". If you trust")[0]  # numpy's advice to unpickle: not for weights
             raise ValueError(
                 f"{path} is not an MLP weights file (.npz from mpclab.approx.train): {why}"
             ) from None
