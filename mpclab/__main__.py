@@ -1,10 +1,19 @@
-"""``python -m mpclab +experiment=NAME [group=choice ...] [key=value ...]``."""
+"""``python -m mpclab +experiment=NAME [group=choice ...] [key=value ...]``.
+
+:func:`cli` is the one place where an error reaches the user: bad input (a typo, a wrong
+type, an impossible value, a broken file, an unwritable folder) is one short message on
+stderr and exit code 2, with no traceback unless ``HYDRA_FULL_ERROR=1``; a single run that
+ends ``solver_failed`` or ``error`` exits 1; Ctrl-C writes the partial run record and exits 130.
+"""
 
 from __future__ import annotations
 
 import json
 import logging
 import os
+import sys
+import traceback
+from collections.abc import Sequence
 from pathlib import Path
 
 import hydra
@@ -12,7 +21,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from mpclab.errors import bad_input_message
 from mpclab.registry import register_all
+from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
 
 register_all()  # every component's schema must be in the ConfigStore before composing
@@ -23,10 +34,40 @@ os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 log = logging.getLogger("mpclab")
 
+#: run statuses of a single run that make the process exit non-zero
+FAILED_RUN_STATUSES = ("solver_failed", "error")
+EXIT_BAD_INPUT, EXIT_RUN_FAILED, EXIT_INTERRUPTED = 2, 1, 130
+_FULL_ERROR = "HYDRA_FULL_ERROR"
+
+
+class RunFailed(Exception):
+    """A single run that ended without a result (its run record says why)."""
+
+    def __init__(self, status: str, error: str | None, out_dir: Path) -> None:
+        super().__init__(f"run ended with status {status}" + (f": {error}" if error else "")
+                         + f"; run record: {out_dir}")
+        self.status = status
+
+
+class _TaskError(BaseException):
+    """Carries an error out of the task past Hydra's job wrapper (which would print
+    ``Error executing job with overrides`` before re-raising it) to :func:`cli`."""
+
+    def __init__(self, error: Exception) -> None:
+        super().__init__(str(error))
+        self.error = error
+
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> dict:
     """One run; in a multirun, one job that resumes or records its error as a row."""
+    try:
+        return _task(cfg)
+    except Exception as exc:  # noqa: BLE001  (reported by cli)
+        raise _TaskError(exc) from None
+
+
+def _task(cfg: DictConfig) -> dict:
     from mpclab.experiment import run_experiment
 
     hc = HydraConfig.get()
@@ -40,7 +81,11 @@ def main(cfg: DictConfig) -> dict:
 
         s = run_job(cfg, out_dir, list(hc.overrides.task), dict(hc.runtime.choices))
     else:
-        s = run_experiment(cfg, out_dir).summary
+        try:
+            s = run_experiment(cfg, out_dir).summary
+        except RunInterrupted as exc:  # its partial record is written: say where
+            exc.out_dir = out_dir
+            raise
     keys = ("status", "arrival_time_s", "n_steps", "compute_median_ms", "rtf", "solver_failures",
             "converged_fraction")
     line = {k: s.get(k) for k in keys}
@@ -51,8 +96,68 @@ def main(cfg: DictConfig) -> dict:
         line["deadline_misses"] = s["deadline_misses"]
     log.info("%s", json.dumps(line))
     log.info("run record: %s", out_dir)
+    if hc.mode != RunMode.MULTIRUN and s.get("status") in FAILED_RUN_STATUSES:
+        raise RunFailed(s["status"], s.get("error"), out_dir)
     return s
 
 
+def cli(argv: Sequence[str] | None = None) -> int:
+    """Run ``python -m mpclab ARGV...`` and return its exit code (0: the run has a result).
+
+    Hydra prints errors raised outside the task with their traceback; here every error comes
+    back (Hydra re-raises with ``HYDRA_FULL_ERROR`` set, restored afterwards) and bad input
+    becomes one message. With ``HYDRA_FULL_ERROR=1`` set by the user, bad input raises.
+    """
+    user_full_error = os.environ.get(_FULL_ERROR)
+    saved_argv = sys.argv
+    root = logging.getLogger()
+    saved_logging = (list(root.handlers), root.level)  # Hydra configures the root logger
+    if argv is not None:
+        sys.argv = [saved_argv[0] if saved_argv else "mpclab", *argv]
+    os.environ[_FULL_ERROR] = "1"
+    error: Exception | None = None
+    try:
+        main()
+    except _TaskError as wrapped:
+        error = wrapped.error
+    except KeyboardInterrupt as exc:
+        where = getattr(exc, "out_dir", None)
+        sys.stderr.write("mpclab: interrupted" + (
+            f"; the steps so far are in {where} (status 'interrupted')\n" if where else "\n"))
+        return EXIT_INTERRUPTED
+    except SystemExit as exc:  # --help, --cfg, Hydra's own usage errors
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except Exception as exc:  # noqa: BLE001  (composing, Hydra's folders: sorted below)
+        error = exc
+    finally:
+        sys.argv = saved_argv
+        for handler in root.handlers:
+            if handler not in saved_logging[0]:
+                handler.close()
+        root.handlers[:] = saved_logging[0]
+        root.setLevel(saved_logging[1])
+        if user_full_error is None:
+            os.environ.pop(_FULL_ERROR, None)
+        else:
+            os.environ[_FULL_ERROR] = user_full_error
+    # outside the handlers, so that a re-raised error is not shown as raised in one
+    return 0 if error is None else report(error, user_full_error is not None)
+
+
+def report(exc: Exception, full_error: bool) -> int:
+    """Write ``exc`` for the user: one message for bad input, a traceback for a bug."""
+    if isinstance(exc, RunFailed):
+        sys.stderr.write(f"mpclab: {exc}\n")
+        return EXIT_RUN_FAILED
+    if full_error:
+        raise exc
+    message = bad_input_message(exc)
+    if message is None:
+        traceback.print_exception(exc)
+        return 1
+    sys.stderr.write(f"mpclab: error: {message}\n(set {_FULL_ERROR}=1 to see the traceback)\n")
+    return EXIT_BAD_INPUT
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

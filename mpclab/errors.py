@@ -1,11 +1,23 @@
-"""Input checking that names what was given, what was expected and the valid choices."""
+"""Input checking that names what was given, what was expected and the valid choices.
+
+:func:`number` is the one check of a numeric option (finite, at or above a bound);
+:func:`bad_input_message` turns any error that comes from bad input (mpclab's own
+:class:`ConfigError`, Hydra's composition and instantiation errors, OmegaConf's, a YAML
+syntax error, a file that cannot be read or written) into one short message, and returns None
+for anything else (a bug, which deserves its traceback).
+"""
 
 from __future__ import annotations
 
 import difflib
+import math
 from collections.abc import Iterable, Mapping
 from enum import Enum
 from typing import Any
+
+import yaml
+from hydra.errors import CompactHydraException, InstantiationException, MissingConfigException
+from omegaconf.errors import OmegaConfBaseException
 
 
 class ConfigError(ValueError):
@@ -39,3 +51,100 @@ def parse_choice(cls: type[Enum], value: Any, key: str) -> Any:
     except ValueError:
         valid = ", ".join(str(m.value) for m in cls)
         raise ConfigError(f"{key}: unknown choice {value!r}; valid: {valid}") from None
+
+
+def number(value: Any, key: str, *, above: float | None = None,
+           at_least: float | None = None) -> float:
+    """``value`` as a finite float, ``> above`` and ``>= at_least`` when given.
+
+    Raises :class:`ConfigError` naming ``key``, the value and what is valid: a string that
+    is not a number (``C1=high``), NaN, infinity or a value out of range.
+    """
+    want = "a finite number"
+    if above is not None:
+        want += f" > {above:g}"
+    if at_least is not None:
+        want += f" >= {at_least:g}"
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{key}: expected {want}, got {value!r}") from None
+    if (not math.isfinite(v) or (above is not None and not v > above)
+            or (at_least is not None and not v >= at_least)):
+        raise ConfigError(f"{key}: expected {want}, got {value!r}")
+    return v
+
+
+def bad_input_message(exc: BaseException) -> str | None:
+    """One short message for an error caused by bad input; None for any other error."""
+    if isinstance(exc, InstantiationException):
+        return _instantiation_message(exc)
+    if isinstance(exc, ConfigError):
+        return str(exc)
+    if isinstance(exc, MissingConfigException) and exc.options:  # an unknown choice
+        name = str(exc.missing_cfg_file or "").rsplit("/", 1)[-1]
+        close = difflib.get_close_matches(name, list(exc.options), n=1)
+        hint = f" Did you mean {close[0]!r}?" if close else ""
+        return f"{str(exc).strip().splitlines()[0]}.{hint} Valid: {', '.join(exc.options)}"
+    if isinstance(exc, CompactHydraException):  # composition: the key and what is valid
+        cause = exc.__cause__
+        text = str(exc)
+        if isinstance(cause, yaml.YAMLError):
+            return yaml_message(cause)
+        if isinstance(cause, OmegaConfBaseException) and str(cause) not in text:
+            text += "\n" + str(cause)
+        return _trim(text)
+    if isinstance(exc, OmegaConfBaseException):
+        return _trim(str(exc))
+    if isinstance(exc, yaml.YAMLError):
+        return yaml_message(exc)
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.strerror or exc}: {exc.filename}"
+    return None
+
+
+def yaml_message(exc: yaml.YAMLError) -> str:
+    """A YAML syntax error as ``file, line L, column C: problem``."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc)
+    context = getattr(exc, "context", None)
+    what = f"{context}: {problem}" if context else problem
+    if mark is None:
+        return f"YAML syntax error: {what}"
+    where = f"{mark.name}, line {mark.line + 1}, column {mark.column + 1}"
+    return f"YAML syntax error in {where}: {what}"
+
+
+def _instantiation_message(exc: InstantiationException) -> str | None:
+    """Hydra's wrapper ``Error in call to target ...`` unwrapped to the cause, keyed."""
+    text = str(exc)
+    full_key = ""
+    for line in text.splitlines():
+        if line.startswith("full_key:"):
+            full_key = line.split(":", 1)[1].strip()
+    cause = exc.__cause__
+    if cause is None:
+        return _trim(text.replace(", set env var HYDRA_FULL_ERROR=1 to see chained exception", ""))
+    inner = bad_input_message(cause)
+    if isinstance(cause, MemoryError):
+        inner = (f"out of memory while building it ({cause}); a smaller problem (e.g. a "
+                 "shorter controller.horizon) may fit")
+    if inner is None:
+        if not isinstance(cause, ValueError | TypeError):
+            return None  # a bug in a constructor: its traceback says more than a message
+        inner = str(cause) if isinstance(cause, ValueError) else f"{type(cause).__name__}: {cause}"
+    if full_key and not inner.startswith(_TOP_LEVEL_KEYS):  # say where, unless it does
+        inner = f"{full_key}: {inner}"
+    return inner
+
+
+#: the composed config's top-level keys: a message starting with one already says where
+_TOP_LEVEL_KEYS = ("plant", "controller", "objective", "supervisor", "scenario", "recorder",
+                   "sim", "seed")
+
+
+def _trim(text: str) -> str:
+    """Drop OmegaConf's ``object_type=`` detail lines; keep the key and the message."""
+    keep = [ln.rstrip() for ln in text.strip().splitlines()
+            if not ln.strip().startswith(("object_type=", "reference_type="))]
+    return "\n".join(keep)

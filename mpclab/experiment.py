@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -11,8 +10,10 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import record
+from mpclab.errors import ConfigError, number
 from mpclab.instantiate import build
-from mpclab.sim import Run, RunResult, simulate
+from mpclab.progress import RunProgress
+from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -30,25 +31,40 @@ def compose(overrides: Sequence[str] = ()) -> DictConfig:
 
 
 def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
-    """Instantiate plant, objective, controller, scenario, supervisor and recorder."""
+    """Instantiate plant, objective, scenario, supervisor, controller and recorder.
+
+    The controller comes after the others but the recorder: it is the expensive one to
+    build (a CasADi NLP compiles), so bad input anywhere else is refused before it.
+    """
+    if cfg.seed < 0:
+        raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)
     plant = build(cfg.plant, "plant")
     objective = build(cfg.objective, "objective")
-    controller = build(cfg.controller, "controller", plant=plant, objective=objective)
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
-    supervisor = build(cfg.supervisor, "supervisor", plant=plant)
+    supervisor = build(cfg.supervisor, "supervisor", plant=plant, objective=objective)
+    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed),
+                  dt=number(cfg.controller.dt, "controller.dt", above=0))
+    controller = build(cfg.controller, "controller", plant=plant, objective=objective,
+                       scenario=scenario)
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
-    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed), dt=controller.dt)
     return Run(plant, controller, scenario, supervisor, recorder, world)
 
 
 def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
-    """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``."""
+    """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``.
+
+    Ctrl-C during the loop writes the record of the steps so far (status ``interrupted``)
+    and raises :class:`~mpclab.sim.RunInterrupted` (a ``KeyboardInterrupt``) again.
+    """
     out_dir = Path(out_dir)
     run = build_run(cfg, out_dir)
-    progress = _ProgressLine(cfg.name) if cfg.progress and sys.stderr.isatty() else None
+    progress = RunProgress(cfg.name, live=sys.stderr.isatty()) if cfg.progress else None
+    interrupted = None
     try:
         result = simulate(run, progress=progress)
+    except RunInterrupted as exc:
+        result, interrupted = exc.result, exc
     finally:
         run.recorder.close()
         if progress is not None:
@@ -65,35 +81,13 @@ def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
         "versions": record.versions(),
     }
     record.write(out_dir, result.steps, result.horizons, result.summary)
+    if interrupted is not None:
+        raise interrupted
     if cfg.figures.enabled:
         from mpclab.recording.figures import plot_run
 
         plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
     return result
-
-
-class _ProgressLine:
-    """A one-line progress display on stderr for an interactive single run."""
-
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self._last = -1
-        self._start = time.perf_counter()
-
-    def __call__(self, t: float, t_max: float) -> None:
-        pct = int(100 * t / t_max)
-        if pct != self._last:
-            self._last = pct
-            wall = time.perf_counter() - self._start
-            left = wall / t * (t_max - t) if t > 0 else float("nan")  # if it runs to t_max
-            sys.stderr.write(
-                f"\r{self.name}: t = {t:6.2f} s of at most {t_max:.1f} s"
-                f" | elapsed {wall:5.1f} s, at most ~{left:5.1f} s left "
-            )
-            sys.stderr.flush()
-
-    def done(self) -> None:
-        sys.stderr.write("\n")
 
 
 def resolved_yaml(cfg: DictConfig) -> str:

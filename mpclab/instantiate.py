@@ -8,13 +8,14 @@ given keys with the target's signature, so a typo names the key, its path and th
 from __future__ import annotations
 
 import inspect
+import pydoc
 from typing import Any
 
 from hydra.errors import InstantiationException
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from mpclab.errors import ConfigError, check_keys
+from mpclab.errors import ConfigError, bad_input_message, check_keys
 
 _HYDRA_KEYS = {"_target_", "_convert_", "_recursive_", "_partial_", "_args_"}
 
@@ -34,9 +35,12 @@ def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
 def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
     target = node["_target_"]
     try:
-        obj = get_object(target)
-    except Exception as exc:  # ImportError, AttributeError wrapped by Hydra
-        raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc})") from exc
+        obj = pydoc.locate(str(target))  # None when not found (Hydra's get_object logs it)
+    except pydoc.ErrorDuringImport as exc:  # the module is there but fails to import
+        raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc.value})") from exc
+    if obj is None:
+        raise ConfigError(f"{path}._target_: cannot import {target!r}: no such module, class "
+                          "or function")
     sig = inspect.signature(obj)
     if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
         return
@@ -60,7 +64,8 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
     try:
         return instantiate(node, _convert_="all", **deps)
     except InstantiationException as exc:
-        # our own errors already say what was wrong and where: show them, not Hydra's wrapper
-        if isinstance(exc.__cause__, ConfigError):
-            raise exc.__cause__ from None
-        raise
+        # the cause, keyed by where it happened, not Hydra's wrapper; a bug keeps its traceback
+        message = bad_input_message(exc)
+        if message is None:
+            raise
+        raise ConfigError(message) from exc

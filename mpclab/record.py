@@ -46,11 +46,15 @@ def write(
 ) -> None:
     """Write the three files of a run record into ``out_dir`` (created if needed)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    steps.to_parquet(out_dir / STEPS, index=False)
-    horizons.to_parquet(out_dir / HORIZONS, index=False)
-    # summary last: its presence marks a complete record
-    write_summary(out_dir, summary)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        steps.to_parquet(out_dir / STEPS, index=False)
+        horizons.to_parquet(out_dir / HORIZONS, index=False)
+        # summary last: its presence marks a complete record
+        write_summary(out_dir, summary)
+    except OSError as exc:  # read-only, full, not a folder: name the folder, not a C++ frame
+        raise OSError(exc.errno, f"cannot write the run record ({exc.strerror or exc})",
+                      str(out_dir)) from exc
 
 
 def write_summary(out_dir: Path, summary: dict[str, Any]) -> None:

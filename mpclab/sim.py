@@ -25,8 +25,19 @@ from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.realism import SimWorld, Timing
 from mpclab.world.scenario import Scenario
 
-#: run statuses, in the run record's ``status`` field
-STATUSES = ("arrived", "stalled", "timeout", "collision", "error")
+#: run statuses, in the run record's ``status`` field; ``solver_failed``: the run did not
+#: arrive and no controller call gave a usable solve (every input applied was a fallback);
+#: ``interrupted``: stopped by Ctrl-C (the record holds the steps until then)
+STATUSES = ("arrived", "stalled", "timeout", "collision", "error", "solver_failed",
+            "interrupted")
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`simulate`, carrying the partial result (status ``interrupted``)."""
+
+    def __init__(self, result: RunResult) -> None:
+        super().__init__("interrupted")
+        self.result = result
 
 
 @dataclass
@@ -108,12 +119,17 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                 progress(k * dt, scen.t_max)
     except Exception as exc:  # the record is still written, with the error in it
         status, error = "error", f"{type(exc).__name__}: {exc}"
+    except KeyboardInterrupt:
+        status, error = "interrupted", "KeyboardInterrupt (Ctrl-C)"
     t_end = k * dt
     log.final(t_end, x, scen.clearance(x))
     steps, horizons = log.tables()
     summary = _summary(steps, status, error, t_end, scen) | _world_summary(steps, world)
     rec.finish(x, t_end, summary)
-    return RunResult(steps, horizons, summary)
+    result = RunResult(steps, horizons, summary)
+    if status == "interrupted":
+        raise RunInterrupted(result)
+    return result
 
 
 def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None) -> StepContext:
@@ -273,6 +289,9 @@ def _summary(
     counts = solve_counts(calls["status"])
     failures = int(sum(n for st, n in counts.items() if st not in USABLE))
     iters = calls["iterations"].dropna().to_numpy()
+    if status in ("stalled", "timeout", "collision") and len(calls) and failures == len(calls):
+        status = "solver_failed"  # what ended the run was a controller that never solved
+        error = error or f"no usable solve in {len(calls)} controller calls"
     return {
         "status": status,
         "arrived": status == "arrived",

@@ -24,7 +24,7 @@ DOC = ROOT / "docs" / "architecture.md"
 FLOORS: dict[int, tuple[str, ...]] = {
     0: ("mpclab", "mpclab.errors", "mpclab.status", "mpclab.lazy", "mpclab.quiet",
         "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate",
-        "mpclab.stats", "mpclab.codegen"),
+        "mpclab.stats", "mpclab.codegen", "mpclab.progress"),
     1: ("mpclab.plants", "mpclab.objectives", "mpclab.approx.features", "mpclab.approx.mlp"),
     2: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recording",
         "mpclab.approx.dataset"),

@@ -97,8 +97,8 @@ def test_linearize_trajectory_equals_pointwise() -> None:
     assert A.shape == (7, 5, 5) and B.shape == (7, 5, 2) and c.shape == (7, 5)
     for k in range(7):
         Ak, Bk, ck = car.linearize(X[k], U[k], 0.1)
-        np.testing.assert_array_equal(A[k], Ak)
-        np.testing.assert_array_equal(B[k], Bk)
+        np.testing.assert_allclose(A[k], Ak, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(B[k], Bk, rtol=1e-14, atol=1e-15)
         np.testing.assert_allclose(c[k], ck, atol=1e-15)
 
 

@@ -7,6 +7,7 @@ Input standardization is folded into the first layer and output scaling kept as
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -156,14 +157,22 @@ class MLP:
             raise FileNotFoundError(
                 f"no NN weights at {path}: train them first (see experiments/zumo_nn/README.md)"
             )
-        with np.load(path, allow_pickle=False) as data:
-            header = json.loads(str(data["header"]))
-            n = int(header["n_layers"])
-            return cls(
-                [data[f"W{i}"] for i in range(n)],
-                [data[f"b{i}"] for i in range(n)],
-                Activation(header["activation"]),
-                data["out_scale"],
-                data["out_offset"],
-                header.get("meta", {}),
-            )
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                header = json.loads(str(data["header"]))
+                n = int(header["n_layers"])
+                return cls(
+                    [data[f"W{i}"] for i in range(n)],
+                    [data[f"b{i}"] for i in range(n)],
+                    Activation(header["activation"]),
+                    data["out_scale"],
+                    data["out_offset"],
+                    header.get("meta", {}),
+                )
+        except (ValueError, KeyError, EOFError, OSError, zipfile.BadZipFile) as exc:
+            # not an npz (a pickle, text), cut short, or an npz of something else
+            why = f"missing array {exc}" if isinstance(exc, KeyError) else str(exc) or repr(exc)
+            why = why.split(". If you trust")[0]  # numpy's advice to unpickle: not for weights
+            raise ValueError(
+                f"{path} is not an MLP weights file (.npz from mpclab.approx.train): {why}"
+            ) from None

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.status import USABLE, SolveStatus
 
@@ -105,12 +105,10 @@ class Controller(ABC):
 
     def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
         if int(horizon) < self.min_horizon:
-            raise ValueError(f"horizon must be >= {self.min_horizon}, got {horizon}")
-        if float(dt) <= 0:
-            raise ValueError(f"dt must be > 0, got {dt}")
+            raise ConfigError(f"controller.horizon must be >= {self.min_horizon}, got {horizon}")
         self.plant = plant
         self.horizon = int(horizon)
-        self.dt = float(dt)
+        self.dt = number(dt, "controller.dt", above=0)
         self._plan: ControlStep | None = None
 
     def reset(self, x0: npt.ArrayLike) -> None:

@@ -14,6 +14,8 @@ about the previous plan shifted, always ``truncated``.
 
 from __future__ import annotations
 
+import logging
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -43,6 +45,9 @@ cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use i
 
 #: bound given to the QP for an input without one (and no trust region): never active
 _FREE = 1e6
+log = logging.getLogger("mpclab")
+#: dense size [bytes] of the exact-Hessian compile above which a build is announced as long
+_BIG_COMPILE = 1e8
 class CvxpySolver(StrEnum):
     CLARABEL = "CLARABEL"
     OSQP = "OSQP"
@@ -173,6 +178,8 @@ class CvxpyMPC(Controller):
             for term in objective:
                 term.require("casadi")
         self._terminal = terminal_rows(plant, terminal_constraint)
+        if not self._terms_qp:
+            self._check_compile_size()
         self._build()
         self.qp = CompiledQP(self.problem, [self.X, self.U], self.solver, self.solver_options,
                              self.warm_start, solve_via)
@@ -180,6 +187,31 @@ class CvxpyMPC(Controller):
             plant, objective, self.horizon, self.dt, self._terminal, self.hessian, self.tol,
             self.max_iterations, self.trust_radius, self._u_lo, self._u_hi,
         )
+
+    def _check_compile_size(self) -> None:
+        """Refuse, or announce, an exact-Hessian QP too large to compile in reasonable time.
+
+        Its objective has an ``(n, n)`` Hessian parameter (``n = nu * horizon``); CVXPY's
+        compile makes a dense ``(n + 1, n^2)`` tensor of it (``toarray`` in its quadratic
+        coefficient extraction), and several copies: 3.8 GB resident and still building after
+        3 minutes at horizon 200 (0.5 GB dense), on the car.
+        """
+        n = self.plant.nu * self.horizon
+        dense = 8.0 * (n + 1) * n * n
+        try:
+            memory = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+        except (ValueError, OSError, AttributeError):  # not on this platform
+            memory = float("inf")
+        what = (f"controller.horizon={self.horizon} with controller.hessian=exact: CVXPY's "
+                f"compile densifies a ({n + 1} x {n * n}) tensor ({dense / 1e9:.3g} GB)")
+        fixes = ("a shorter horizon, controller.hessian=gauss_newton or controller=casadi "
+                 "poses the problem without it")
+        if 8 * dense > memory:
+            raise ConfigError(f"{what} and needs several times that; this machine has "
+                              f"{memory / 1e9:.3g} GB. {fixes[0].upper()}{fixes[1:]}")
+        if dense > _BIG_COMPILE:
+            log.warning("%s: building may take minutes and several times that memory; %s",
+                        what, fixes)
 
     def _build(self) -> None:
         nx, nu, T = self.plant.nx, self.plant.nu, self.horizon

@@ -20,6 +20,7 @@ from mpclab.controllers.base import Controller, ControlStep, FloatArray, SolveSt
 from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
 from mpclab.registry import component
+from mpclab.world.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -43,14 +44,22 @@ class NNController(Controller):
         Path of the ``.npz`` written by training; its metadata names the feature set.
     dt
         Sample time [s].
+    scenario
+        Injected when built from config: its range sensor must give the rays the net was
+        trained on.
     """
 
     min_horizon = 0
 
-    def __init__(self, plant: Plant, weights: str, dt: float = 0.2) -> None:
+    def __init__(
+        self, plant: Plant, weights: str, dt: float = 0.2, scenario: Scenario | None = None
+    ) -> None:
         super().__init__(plant, 0, dt)
         path = Path(weights)
-        self.mlp = MLP.load(path if path.is_absolute() else ROOT / path)
+        try:
+            self.mlp = MLP.load(path if path.is_absolute() else ROOT / path)
+        except (ValueError, FileNotFoundError) as exc:
+            raise ConfigError(f"controller.weights: {exc}") from None
         meta = self.mlp.meta
         self.features = FeatureSet(meta.get("features", "study"))
         self.min_range = float(meta.get("min_range", 0.05))
@@ -60,7 +69,7 @@ class NNController(Controller):
         # a slice (a view, no copy) when the pose is stored contiguously, as for the Zumo
         self._ip = slice(ip[0], ip[0] + 3) if ip == list(range(ip[0], ip[0] + 3)) else ip
         if self.mlp.n_out != plant.nu:
-            raise ConfigError(f"NN weights give {self.mlp.n_out} outputs, plant "
+            raise ConfigError(f"controller.weights: the net gives {self.mlp.n_out} outputs, plant "
                               f"{type(plant).__name__} has {plant.nu} inputs")
         # output scaling folded into the last layer: the step is matrix-vector products only
         w, b = list(self.mlp.weights), list(self.mlp.biases)
@@ -70,6 +79,12 @@ class NNController(Controller):
         self._w = [np.ascontiguousarray(np.column_stack([wi, bi])) for wi, bi in zip(w, b,
                                                                                     strict=True)]
         self._n_rays = self.mlp.n_in - n_features(self.features, 0)
+        n_sensed = getattr(getattr(scenario, "sensor", None), "n_rays", None)
+        if scenario is not None and n_sensed != self._n_rays:
+            raise ConfigError(
+                f"controller.weights: the net takes {self._n_rays} range rays, the scenario "
+                f"{scenario.name!r} gives {n_sensed or 0} (scenario.sensor.n_rays)"
+            )
         self._ranges_shape = (self._n_rays,)
         # buffers reused every step: the features and each layer's output, each with the 1;
         # the step walks this precomputed plan: (weights, input, output view, activate?)

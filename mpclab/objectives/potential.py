@@ -25,7 +25,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.objectives.base import Term, TermContext
 
 
@@ -33,9 +33,7 @@ class _PositionTerm(Term):
     """A term over predicted positions; resolves the plant's position/heading labels."""
 
     def __init__(self, eps: float = 1e-6) -> None:
-        if float(eps) <= 0:
-            raise ConfigError(f"eps must be > 0, got {eps}")
-        self.eps = float(eps)
+        self.eps = number(eps, "eps", above=0)
 
     def bind(self, plant: Any) -> None:
         self._ix, self._iy = (plant.state_index(s) for s in plant.position)
@@ -53,8 +51,7 @@ class _PositionTerm(Term):
 
 def _positive(**weights: float) -> None:
     for key, w in weights.items():
-        if float(w) <= 0:
-            raise ConfigError(f"{key} must be > 0, got {w}")
+        number(w, key, above=0)
 
 
 class GoalAttraction(_PositionTerm):
@@ -122,7 +119,7 @@ class LeftHandPull(_PositionTerm):
         _positive(C4=C4, L4=L4)
         self.C4, self.L4 = float(C4), float(L4)
         self.goal_scaled = bool(goal_scaled)
-        self.angle_deg = float(angle_deg)
+        self.angle_deg = number(angle_deg, "angle_deg")
         a = np.deg2rad(self.angle_deg)
         self._rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
 

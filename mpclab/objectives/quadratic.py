@@ -13,7 +13,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Term, TermContext
 
@@ -48,8 +48,7 @@ class QuadraticTracking(Term):
             ("terminal_weights", self.terminal_weights),
         ):
             for label, w in weights.items():
-                if float(w) < 0:
-                    raise ConfigError(f"{what}.{label} must be >= 0, got {w}")
+                weights[label] = number(w, f"{what}.{label}", at_least=0)
 
     def bind(self, plant: Any) -> None:
         def split(weights: dict[str, float], index: Any) -> tuple[list[int], np.ndarray]:

@@ -7,14 +7,13 @@ across samples, not only within one plan.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Term, TermContext
 
@@ -37,8 +36,7 @@ class InputRate(Term):
         if not self.weights:
             raise ConfigError("InputRate.weights is empty: name at least one input")
         for label, w in self.weights.items():
-            if not math.isfinite(float(w)) or float(w) < 0:
-                raise ConfigError(f"weights.{label} must be a finite number >= 0, got {w}")
+            self.weights[label] = number(w, f"weights.{label}", at_least=0)
 
     def bind(self, plant: Any) -> None:
         try:

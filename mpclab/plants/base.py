@@ -22,7 +22,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import check_keys
+from mpclab.errors import check_keys, number
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -197,7 +197,14 @@ class Plant:
             )
         valid = [f.name for f in dataclasses.fields(cls.Params)]
         check_keys(params, valid, where=f"plant {cls.__name__} params")
-        return cls.Params(**{k: float(v) for k, v in params.items()})
+        # a physical parameter is a finite number >= 0; one whose default is > 0 (a length, a
+        # mass, a stiffness) must stay > 0, one that may vanish (a drag) defaults to 0
+        defaults = cls.Params()
+        return cls.Params(**{
+            k: number(v, f"params.{k}", **({"above": 0} if getattr(defaults, k) > 0
+                                          else {"at_least": 0}))
+            for k, v in params.items()
+        })
 
     @staticmethod
     def _bounds(
@@ -213,6 +220,8 @@ class Plant:
             if len(pair) != 2:
                 raise ValueError(f"{what}.{label} must be [lower, upper], got {list(pair)}")
             lo, hi = (float(v) for v in pair)
+            if lo != lo or hi != hi:  # NaN: no bound at all, silently
+                raise ValueError(f"{what}.{label}: a bound is NaN, got {list(pair)}")
             if lo > hi:
                 raise ValueError(f"{what}.{label}: lower bound {lo} exceeds upper bound {hi}")
             i = labels.index(label)

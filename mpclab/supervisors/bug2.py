@@ -20,7 +20,8 @@ from enum import StrEnum
 
 import numpy as np
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
+from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 from mpclab.supervisors.base import FloatArray, Supervisor
@@ -68,6 +69,9 @@ class Bug2(Supervisor):
     goal_sight_range
         Also leave off the m-line when the goal is nearer than this and the corridor to it
         is free of detected points [m] (at most the sensor's range); 0: the m-line only.
+    objective
+        Injected; every term a mode names must be one of its terms, and every one of its
+        terms must be named by some mode (a term no mode names would be silently off).
     """
 
     def __init__(
@@ -79,6 +83,7 @@ class Bug2(Supervisor):
         mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
         goal_sight_range: float = 0.0,
+        objective: Objective | None = None,
     ) -> None:
         given = dict(modes or Bug2Conf().modes)
         valid = [m.value for m in Bug2Mode]
@@ -87,21 +92,14 @@ class Bug2(Supervisor):
                 f"supervisor.modes must name exactly the modes {valid}, got {sorted(given)}"
             )
         self.modes = {Bug2Mode(k): frozenset(str(t) for t in v) for k, v in given.items()}
-        for name, value in (
-            ("block_range", block_range), ("corridor_half_width", corridor_half_width),
-            ("mline_tolerance", mline_tolerance),
-        ):
-            if float(value) <= 0:
-                raise ConfigError(f"supervisor.{name} must be > 0, got {value}")
-        self.block_range = float(block_range)
-        self.corridor = float(corridor_half_width)
-        self.mline_tol = float(mline_tolerance)
-        self.leave_margin = float(leave_margin)
-        if not float(goal_sight_range) >= 0:
-            raise ConfigError(
-                f"supervisor.goal_sight_range must be >= 0 (0: off), got {goal_sight_range}"
-            )
-        self.sight = float(goal_sight_range)
+        if objective is not None:
+            check_modes(given, list(objective.terms))
+        self.block_range = number(block_range, "supervisor.block_range", above=0)
+        self.corridor = number(corridor_half_width, "supervisor.corridor_half_width", above=0)
+        self.mline_tol = number(mline_tolerance, "supervisor.mline_tolerance", above=0)
+        self.leave_margin = number(leave_margin, "supervisor.leave_margin")
+        self.sight = number(goal_sight_range, "supervisor.goal_sight_range (0: off)",
+                            at_least=0)
         self._ip = [plant.state_index(s) for s in plant.position]
         self.mode = Bug2Mode.go_to_goal
         #: ((x_start, y_start), (x_goal, y_goal)), set by reset
@@ -188,3 +186,24 @@ class Bug2(Supervisor):
         if previous is not None:
             on = on or side * self.mline_side(previous) < 0
         return bool(closer and on)
+
+
+def check_modes(modes: Mapping[str, Sequence[str]], terms: Sequence[str]) -> None:
+    """Raise :class:`ConfigError` unless the modes name only the objective's terms and every
+    term is named by some mode."""
+    for mode, names in modes.items():
+        for name in names:
+            if name not in terms:
+                raise ConfigError(
+                    f"supervisor.modes.{mode} names the term {name!r}, which the objective does "
+                    f"not have; objective terms: {', '.join(terms)}"
+                )
+    used = {str(n) for names in modes.values() for n in names}
+    unused = [t for t in terms if t not in used]
+    if unused:
+        raise ConfigError(
+            f"objective term(s) {', '.join(map(repr, unused))} named by no supervisor mode "
+            f"would never be active; add them to supervisor.modes "
+            f"({'; '.join(f'{m}: {list(n)}' for m, n in modes.items())}) or remove them "
+            "from objective.terms"
+        )

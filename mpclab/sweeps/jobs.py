@@ -1,7 +1,8 @@
 """One multirun job: resume a complete run record, or run it and record any error as a row.
 
 A job's record is *complete* when its ``summary.json`` exists, its status is not ``error``
-and it was written for the same overrides (``summary["overrides"]``, ignoring ``resume``).
+or ``interrupted`` and it was written for the same overrides (``summary["overrides"]``,
+ignoring ``resume``).
 Hydra numbers jobs by their position in the sweep, so the same sweep command with the same
 sweep folder maps every job to the same folder again.
 """
@@ -17,6 +18,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from mpclab import record
+from mpclab.errors import bad_input_message
 from mpclab.tables import override_key
 
 log = logging.getLogger("mpclab.sweep")
@@ -39,7 +41,7 @@ def complete_summary(out_dir: Path, overrides: Sequence[str]) -> dict[str, Any] 
         summary = record.read_summary(out_dir)
     except ValueError:  # a torn or hand-edited file: run again
         return None
-    if summary.get("status") == "error":
+    if summary.get("status") in ("error", "interrupted"):
         return None
     if job_overrides(summary.get("overrides") or []) != job_overrides(overrides):
         return None
@@ -47,7 +49,11 @@ def complete_summary(out_dir: Path, overrides: Sequence[str]) -> dict[str, Any] 
 
 
 def error_message(exc: BaseException) -> str:
-    """The root cause first, then the wrapper that says where (Hydra wraps both)."""
+    """Bad input as the one message the command line prints; otherwise the root cause
+    first, then the wrapper that says where (Hydra wraps both)."""
+    message = bad_input_message(exc)
+    if message is not None:
+        return message
     root = exc
     while root.__cause__ is not None:
         root = root.__cause__

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError, check_keys
+from mpclab.errors import ConfigError, check_keys, number
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -65,7 +65,8 @@ def layout(
     for i, d in enumerate(discs):
         if len(d) != 2:
             raise ConfigError(f"scenario.discs[{i}] must be [x, y], got {list(d)}")
-        parts.append(np.array([[float(d[0]), float(d[1]), float(radius)]]))
+        parts.append(np.array([[number(d[0], f"scenario.discs[{i}][0]"),
+                                number(d[1], f"scenario.discs[{i}][1]"), float(radius)]]))
     for i, w in enumerate(walls):
         check_keys(w, ("start", "end", "spacing"), where=f"scenario.walls[{i}]")
         parts.append(wall(w["start"], w["end"], float(w.get("spacing", 0.05)), radius))

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import ConfigError, check_keys, parse_choice
+from mpclab.errors import ConfigError, check_keys, number, parse_choice
 from mpclab.plants.base import FloatArray, Plant
 from mpclab.registry import component
 
@@ -235,20 +235,11 @@ def _latency(value: Any) -> tuple[Latency, float]:
 
 
 def _nonneg(value: Any, key: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{key} must be a number >= 0, got {value!r}") from None
-    if not math.isfinite(v) or v < 0:
-        raise ConfigError(f"{key} must be a finite number >= 0, got {value}")
-    return v
+    return number(value, key, at_least=0)
 
 
 def _positive(value: Any, key: str) -> float:
-    v = _nonneg(value, key)
-    if v == 0:
-        raise ConfigError(f"{key} must be > 0, got {value}")
-    return v
+    return number(value, key, above=0)
 
 
 def _stds(plant: Plant, given: Mapping[str, Any], key: str) -> FloatArray:

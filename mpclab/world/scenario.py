@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 
@@ -67,21 +67,25 @@ class Scenario:
         self.x0 = self._vector(start, "scenario.start")
         self.goal = self._vector(goal, "scenario.goal")
         weights = dict(arrival.get("weights", {}))
-        if not weights:
-            raise ConfigError("scenario.arrival.weights is empty: no state decides arrival")
+        for label, w in weights.items():
+            number(w, f"scenario.arrival.weights.{label}", at_least=0)
+        if not any(float(w) > 0 for w in weights.values()):
+            raise ConfigError("scenario.arrival.weights: no positive weight, so no state decides "
+                              f"arrival; got {weights or '{}'}")
         self._arrival_w = self._vector(weights, "scenario.arrival.weights")
-        self.arrival_threshold = float(arrival.get("threshold", 1.0))
-        if float(t_max) <= 0:
-            raise ConfigError(f"scenario.t_max must be > 0, got {t_max}")
-        self.t_max = float(t_max)
+        # a threshold <= 0 can never be met: the weighted squared distance is >= 0
+        self.arrival_threshold = number(arrival.get("threshold", 1.0),
+                                        "scenario.arrival.threshold", above=0)
+        self.t_max = number(t_max, "scenario.t_max", above=0)
 
     def _vector(self, values: Mapping[str, float], where: str) -> FloatArray:
         v = np.zeros(self.plant.nx)
         for label, value in values.items():
             try:
-                v[self.plant.state_index(label)] = float(value)
+                i = self.plant.state_index(label)
             except ValueError as exc:
                 raise ConfigError(f"{where}: {exc}") from None
+            v[i] = number(value, f"{where}.{label}")
         return v
 
     def arrival_distance(self, x: FloatArray) -> float:

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from mpclab.errors import ConfigError, number
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -74,12 +76,11 @@ class RangeSensor:
 
     def __init__(self, n_rays: int = 20, max_range: float = 0.3, offset_deg: float = 0.0) -> None:
         if int(n_rays) < 1:
-            raise ValueError(f"sensor.n_rays must be >= 1, got {n_rays}")
-        if float(max_range) <= 0:
-            raise ValueError(f"sensor.max_range must be > 0, got {max_range}")
+            raise ConfigError(f"scenario.sensor.n_rays must be >= 1, got {n_rays}")
         self.n_rays = int(n_rays)
-        self.max_range = float(max_range)
-        self._rel = np.deg2rad(float(offset_deg)) + 2 * np.pi * np.arange(self.n_rays) / self.n_rays
+        self.max_range = number(max_range, "scenario.sensor.max_range", above=0)
+        offset = number(offset_deg, "scenario.sensor.offset_deg")
+        self._rel = np.deg2rad(offset) + 2 * np.pi * np.arange(self.n_rays) / self.n_rays
 
     def angles(self, theta: float) -> FloatArray:
         """World angles of the rays for heading ``theta`` ``(n_rays,)`` [rad]."""

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import ConfigError
+from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 from mpclab.world.obstacles import RandomLayoutConf, WallConf, layout, random_walls
@@ -103,9 +103,8 @@ class ObstacleScenario(Scenario):
             raise ConfigError(f"scenario {name!r} needs a plant with a heading for its sensor")
         self._ip = [plant.state_index(s) for s in plant.position]
         self._ih = plant.state_index(plant.heading)
-        self.robot_radius = float(robot_radius)
-        if self.robot_radius < 0:
-            raise ConfigError(f"scenario.robot_radius must be >= 0, got {robot_radius}")
+        self.robot_radius = number(robot_radius, "scenario.robot_radius", at_least=0)
+        number(obstacle_radius, "scenario.obstacle_radius", above=0)
         spacing = min((float(w.get("spacing", 0.05)) for w in walls), default=0.05)
         obs = layout(discs, walls, obstacle_radius)
         if random is not None and int(random.get("n_walls", 0)) > 0:
@@ -129,8 +128,22 @@ class ObstacleScenario(Scenario):
             if rng is None:
                 raise ConfigError(f"scenario {name!r}: a random start needs the run's rng")
             self.x0 = self._random_start(dict(start_region), float(start_clearance), rng)
-        if self.clearance(self.x0) < 0:
-            raise ConfigError(f"scenario {name!r}: the start overlaps an obstacle")
+        for what, x in (("start", self.x0), ("goal", self.goal)):
+            self._check_clear(what, x)
+
+    def _check_clear(self, what: str, x: FloatArray) -> None:
+        """Raise :class:`ConfigError` if the robot at ``x`` overlaps an obstacle."""
+        gap = self.clearance(x)
+        if gap < 0:
+            p = np.asarray(x)[self._ip]
+            i = int(np.argmin(np.linalg.norm(self.obstacles[:, :2] - p, axis=1)
+                              - self.obstacles[:, 2]))
+            cx, cy, r = self.obstacles[i]
+            raise ConfigError(
+                f"scenario.{what}: the robot (radius {self.robot_radius:g} m) at "
+                f"({p[0]:g}, {p[1]:g}) overlaps the obstacle at ({cx:g}, {cy:g}) (radius "
+                f"{r:g} m) by {-gap:.3g} m; a {what} must be clear of every obstacle"
+            )
 
     def _random_start(
         self, region: dict[str, Sequence[float]], clearance: float, rng: np.random.Generator
