@@ -13,6 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 from mpclab import record
 from mpclab.instantiate import build
 from mpclab.sim import Run, RunResult, simulate
+from mpclab.warm import ComponentCache
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -29,29 +30,48 @@ def compose(overrides: Sequence[str] = ()) -> DictConfig:
         return hydra_compose(config_name="config", overrides=list(overrides))
 
 
-def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
-    """Instantiate plant, objective, controller, scenario, supervisor and recorder."""
+def build_run(
+    cfg: DictConfig, out_dir: Path | None = None, cache: ComponentCache | None = None,
+) -> Run:
+    """Instantiate plant, objective, controller, scenario, supervisor and recorder.
+
+    With a ``cache``, plant, objective and controller are reused from an earlier run of the
+    same structure (:mod:`mpclab.warm`).
+    """
     rng = np.random.default_rng(cfg.seed)
-    plant = build(cfg.plant, "plant")
-    objective = build(cfg.objective, "objective")
-    controller = build(cfg.controller, "controller", plant=plant, objective=objective)
+
+    def components() -> tuple:
+        plant = build(cfg.plant, "plant")
+        objective = build(cfg.objective, "objective")
+        return plant, objective, build(cfg.controller, "controller", plant=plant,
+                                       objective=objective)
+
+    plant, objective, controller = cache.get(cfg, components) if cache else components()
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
     supervisor = build(cfg.supervisor, "supervisor", plant=plant)
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     return Run(plant, controller, scenario, supervisor, recorder)
 
 
-def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
-    """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``."""
+def run_experiment(
+    cfg: DictConfig, out_dir: Path, cache: ComponentCache | None = None,
+) -> RunResult:
+    """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``.
+
+    ``summary["timing"]`` holds the wall seconds of building, the closed loop and writing.
+    """
     out_dir = Path(out_dir)
-    run = build_run(cfg, out_dir)
+    t0 = time.perf_counter()
+    run = build_run(cfg, out_dir, cache)
     progress = _ProgressLine(cfg.name) if cfg.progress and sys.stderr.isatty() else None
+    t1 = time.perf_counter()
     try:
         result = simulate(run, progress=progress)
     finally:
         run.recorder.close()
         if progress is not None:
             progress.done()
+    t2 = time.perf_counter()
     result.summary = {
         "experiment": cfg.name,
         "plant": getattr(run.plant, "registered_name", type(run.plant).__name__),
@@ -63,11 +83,13 @@ def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
         **run.controller.metrics(result.steps),
         "versions": record.versions(),
     }
+    result.summary["timing"] = {"build_s": t1 - t0, "simulate_s": t2 - t1}
     record.write(out_dir, result.steps, result.horizons, result.summary)
     if cfg.figures.enabled:
         from mpclab.recording.figures import plot_run
 
         plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
+    result.summary["timing"]["write_s"] = time.perf_counter() - t2
     return result
 
 

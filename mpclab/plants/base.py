@@ -14,6 +14,7 @@ and the same functions are what the simulator integrates and what every backend 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -243,6 +244,9 @@ def register_plant(name: str) -> Any:
                 ("substeps", int, dataclasses.field(default=1)),
             ],
         )
+        # importable by name, so that configs holding it pickle (sweep workers copy them)
+        schema.__module__ = cls.__module__
+        setattr(sys.modules[cls.__module__], schema.__name__, schema)
         return component("plant", name, schema)(cls)
 
     return deco
