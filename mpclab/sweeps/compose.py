@@ -21,6 +21,7 @@ config that does not pickle is deep-copied instead).
 from __future__ import annotations
 
 import copy
+import functools
 import importlib
 import io
 import pickle
@@ -70,7 +71,7 @@ class CachedComposeLoader:
         """What ``ConfigLoaderImpl.load_sweep_config`` returns, composed from a cached tree."""
         hydra_overrides = list(OmegaConf.to_container(master_config.hydra.overrides.hydra))
         lines = hydra_overrides + list(sweep_overrides)
-        parsed = OverridesParser.create().parse_overrides(overrides=lines)
+        parsed = [_parse(line) for line in lines]
         repo = self.loader.repository
         group = [o for o in parsed if not _is_value_override(o, repo)]
         values = [o for o in parsed if _is_value_override(o, repo)]
@@ -128,6 +129,12 @@ def _frozen(cfg: DictConfig) -> bytes | DictConfig:
     except (pickle.PicklingError, TypeError, AttributeError):
         return cfg
     return buf.getvalue()
+
+
+@functools.lru_cache(maxsize=4096)
+def _parse(line: str) -> Override:
+    """One override parsed (sweeps repeat most of their override lines from job to job)."""
+    return OverridesParser.create().parse_overrides(overrides=[line])[0]
 
 
 def _is_value_override(override: Override, repo: Any) -> bool:
