@@ -35,6 +35,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from pathlib import Path
 from typing import Any
 
+import cloudpickle
 from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, configure_log, filter_overrides, setup_globals
 from hydra.plugins.launcher import Launcher
@@ -75,9 +76,15 @@ def _init_worker(
     _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function)
 
 
+def _init_pickled(blob: bytes) -> None:
+    """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
+    (Hydra's configs hold classes that the standard pickle cannot find by name)."""
+    _init_worker(*cloudpickle.loads(blob))
+
+
 def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, Any]]:
     """Compose and run job ``idx`` in this worker; the result without its configs."""
-    t0 = time.perf_counter()
+    t0, start = time.perf_counter(), time.time()
     ctx, config = _WORKER["hydra_context"], _WORKER["config"]
     try:
         sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
@@ -93,7 +100,7 @@ def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, A
     task_s = time.perf_counter() - t0
     value = ret._return_value
     timing = value.get("timing", {}) if isinstance(value, dict) else {}
-    info = {"job": idx, "pid": os.getpid(), "task_s": task_s, **timing}
+    info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, **timing}
     return ret, info
 
 
@@ -182,8 +189,12 @@ class PoolLauncher(Launcher):
                  n: int) -> dict[int, tuple[JobReturn, dict[str, Any]]]:
         ctx = multiprocessing.get_context(self.start_method)
         results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}
-        with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
-                                 initargs=init) as pool:
+        if self.start_method == "fork":  # inherited, not pickled
+            initializer, initargs = _init_worker, init
+        else:
+            initializer, initargs = _init_pickled, (cloudpickle.dumps(init),)
+        with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=initializer,
+                                 initargs=initargs) as pool:
             pending: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
                                           for idx, ov in jobs}
             while pending:

@@ -147,13 +147,17 @@ class SweepCallback(Callback):
 
         sweep_dir = Path(config.hydra.sweep.dir)
         state = sweep_dir / STATE_DIR
+        jobs_end = time.time()
         try:
             meta = json.loads((state / SWEEP_FILE).read_text())
-            elapsed = time.time() - meta["start"]
+            elapsed = jobs_end - meta["start"]
         except (OSError, ValueError):
-            elapsed = float("nan")
+            meta, elapsed = None, float("nan")
         t0 = time.perf_counter()
         report = write_report([sweep_dir], sweep_dir, figure=self.figure, x=self.x)
+        if meta is not None:  # when the jobs ended and how long the tables took (benchmarks)
+            meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
+            (state / SWEEP_FILE).write_text(json.dumps(meta))
         df = report.runs
         if df.empty:
             log.warning("sweep: no run records in %s", sweep_dir)
