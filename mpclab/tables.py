@@ -28,6 +28,8 @@ from mpclab import record
 from mpclab.status import SOLVE_KEYS, SolveStatus
 from mpclab.sweeps import stream
 
+#: PyYAML's safe loader, libyaml's where PyYAML has it (5-10 times faster)
+_SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 #: status of a run folder whose summary.json is missing or unreadable
 INCOMPLETE = "incomplete"
 #: summary fields first in the table (others follow in the order they are met)
@@ -115,7 +117,7 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         summary.update(_choices(run_dir / ".hydra" / "hydra.yaml"))
     overrides_file = run_dir / ".hydra" / "overrides.yaml"
     if overrides_file.is_file():
-        overrides = yaml.safe_load(overrides_file.read_text()) or []
+        overrides = yaml.load(overrides_file.read_text(), Loader=_SafeLoader) or []
     else:
         overrides = summary.get("overrides") or []
     row = {k: v for k, v in summary.items() if k not in DROPPED}

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import tables
+from mpclab.sweeps import stream
 
 log = logging.getLogger("mpclab.sweep")
 
@@ -130,13 +130,9 @@ class SweepCallback(Callback):
         run_dir = OmegaConf.select(config, "hydra.runtime.output_dir")
         if run_dir:
             tables.stream_row(config.hydra.sweep.dir, Path(run_dir))
-        entry = json.dumps({"job": config.hydra.job.num, "status": status, "resumed": resumed})
-        fd = os.open(state / PROGRESS_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
-        try:
-            os.write(fd, (entry + "\n").encode())  # one small write: atomic with O_APPEND
-        finally:
-            os.close(fd)
-        rows = [json.loads(x) for x in (state / PROGRESS_FILE).read_text().splitlines() if x]
+        stream.append(state / PROGRESS_FILE,
+                      {"job": config.hydra.job.num, "status": status, "resumed": resumed})
+        rows = stream.read(state / PROGRESS_FILE)
         log.info("sweep: %s", progress_line(
             len(rows), meta["total"], sum(r["status"] == "error" for r in rows),
             sum(r["resumed"] for r in rows), time.time() - meta["start"],
