@@ -200,14 +200,20 @@ class PoolLauncher(Launcher):
             initializer, initargs = _init_worker, init
         else:
             initializer, initargs = _init_pickled, (cloudpickle.dumps(init),)
-        with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=initializer,
-                                 initargs=initargs) as pool:
+        pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=initializer,
+                                   initargs=initargs)
+        try:
             pending: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
                                           for idx, ov in jobs}
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     results[pending.pop(fut)] = fut.result()
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        # every job is done: the workers exit while this process writes the sweep's tables
+        pool.shutdown(wait=False)
         return results
 
 
