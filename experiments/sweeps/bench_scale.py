@@ -86,6 +86,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--jobs", type=int, default=48)
     parser.add_argument("--rounds", type=int, default=1, help="1: W = 1, 2; 2: 1, 2, 2, 1")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2],
+                        help="worker counts (the fit and projection need 1 and 2)")
     parser.add_argument("--wait-quiet", action="store_true")
     parser.add_argument("overrides", nargs="*", help="extra overrides for every sweep")
     args = parser.parse_args()
@@ -94,13 +96,35 @@ def main() -> None:
     results = []
     with tempfile.TemporaryDirectory(prefix="mpclab_bench_") as tmp:
         for r in range(args.rounds):
-            for w in ((1, 2) if r % 2 == 0 else (2, 1)):
+            for w in (args.workers if r % 2 == 0 else args.workers[::-1]):
                 res = run(args.jobs, w, args.overrides, Path(tmp) / f"r{r}_w{w}")
                 results.append(res)
                 print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
                                   for k, v in res.items()}), flush=True)
     df = pd.DataFrame(results)
+    for _, r in df.iterrows():
+        bound = 1.3 * r["closed_loop_sum_s"] / r["workers"]
+        print(f"  W={r['workers']}: {r['rows']}/{r['jobs']} rows, wall {r['wall_s']:.1f} s, "
+              f"1.3 x closed loop / W = {bound:.1f} s ({r['wall_s'] / bound * 1.3:.2f} x)")
+    print(f"load average: before {df['load_before'].min():.2f}-{df['load_before'].max():.2f}, "
+          f"after {df['load_after'].min():.2f}-{df['load_after'].max():.2f}; "
+          f"cores {os.cpu_count()}")
+    print(f"per job outside the closed loop on a warm worker: median "
+          f"{statistics.median(df['warm_outside_median_s']):.3f} s, mean "
+          f"{statistics.median(df['warm_outside_mean_s']):.3f} s; a worker's first job "
+          f"{df['first_job_outside_s'].median():.2f} s")
+    one = df[df["workers"] == 1]
+    if len(one):  # from the parts one worker measured: what does not shrink with workers
+        fixed = float((one["before_first_job_s"] + one["after_last_job_s"]
+                       + one["first_job_outside_s"]).median())
+        work = float((one["task_sum_s"] - one["first_job_outside_s"]).median())
+        t1 = float(one["wall_s"].median())
+        print(f"from the parts (1 worker): fixed {fixed:.2f} s (before the first job, after the "
+              f"last, a worker's first set-up), jobs {work:.2f} s; projected speed-up: "
+              + ", ".join(f"{c} cores {t1 / (fixed + work / c):.1f}" for c in (2, 16, 64)))
     med = df.groupby("workers")["wall_s"].median()
+    if not {1, 2} <= set(med.index):
+        return
     t1, t2 = med[1], med[2]
     serial = 2 * t2 - t1                    # Amdahl: T(W) = S + P / W
     parallel = 2 * (t1 - t2)
@@ -110,22 +134,10 @@ def main() -> None:
           f"({parallel / args.jobs:.3f} s per job)")
     for cores in (16, 64):
         print(f"  projected speed-up on {cores} cores: {t1 / (serial + parallel / cores):.1f}")
-    one = df[df["workers"] == 1]
     print("measured serial (1 worker): before the first job "
           f"{one['before_first_job_s'].median():.2f} s, after the last "
           f"{one['after_last_job_s'].median():.2f} s (tables and figure "
           f"{one['report_s'].median():.2f} s)")
-    print(f"per job outside the closed loop on a warm worker: median "
-          f"{statistics.median(df['warm_outside_median_s']):.3f} s, mean "
-          f"{statistics.median(df['warm_outside_mean_s']):.3f} s; a worker's first job "
-          f"{df['first_job_outside_s'].median():.2f} s")
-    for _, r in df.iterrows():
-        bound = 1.3 * r["closed_loop_sum_s"] / r["workers"]
-        print(f"  W={r['workers']}: {r['rows']}/{r['jobs']} rows, wall {r['wall_s']:.1f} s, "
-              f"1.3 x closed loop / W = {bound:.1f} s ({r['wall_s'] / bound * 1.3:.2f} x)")
-    print(f"load average: before {df['load_before'].min():.2f}-{df['load_before'].max():.2f}, "
-          f"after {df['load_after'].min():.2f}-{df['load_after'].max():.2f}; "
-          f"cores {os.cpu_count()}")
 
 
 if __name__ == "__main__":
