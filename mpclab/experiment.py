@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from mpclab.errors import ConfigError, number
 from mpclab.instantiate import build
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
+from mpclab.warm import ComponentCache
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -30,37 +32,53 @@ def compose(overrides: Sequence[str] = ()) -> DictConfig:
         return hydra_compose(config_name="config", overrides=list(overrides))
 
 
-def build_run(cfg: DictConfig, out_dir: Path | None = None) -> Run:
-    """Instantiate plant, objective, scenario, supervisor, controller and recorder.
+def build_run(
+    cfg: DictConfig, out_dir: Path | None = None, cache: ComponentCache | None = None,
+) -> Run:
+    """Instantiate plant, objective, scenario, supervisor, sim world, controller, recorder.
 
     The controller comes after the others but the recorder: it is the expensive one to
-    build (a CasADi NLP compiles), so bad input anywhere else is refused before it.
+    build (a CasADi NLP compiles), so bad input anywhere else is refused before it. With a
+    ``cache``, plant, objective and controller are reused from an earlier run of the same
+    structure (:mod:`mpclab.warm`).
     """
     if cfg.seed < 0:
         raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)
-    plant = build(cfg.plant, "plant")
-    objective = build(cfg.objective, "objective")
+    reused = cache.lookup(cfg) if cache is not None else None
+    if reused is not None:
+        plant, objective, controller = reused
+    else:
+        plant = build(cfg.plant, "plant")
+        objective = build(cfg.objective, "objective")
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
     supervisor = build(cfg.supervisor, "supervisor", plant=plant, objective=objective)
     world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed),
                   dt=number(cfg.controller.dt, "controller.dt", above=0))
-    controller = build(cfg.controller, "controller", plant=plant, objective=objective,
-                       scenario=scenario)
+    if reused is None:
+        controller = build(cfg.controller, "controller", plant=plant, objective=objective,
+                           scenario=scenario)
+        if cache is not None:
+            cache.store(cfg, (plant, objective, controller))
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     return Run(plant, controller, scenario, supervisor, recorder, world)
 
 
-def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
+def run_experiment(
+    cfg: DictConfig, out_dir: Path, cache: ComponentCache | None = None,
+) -> RunResult:
     """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``.
 
+    ``summary["timing"]`` holds the wall seconds of building, the closed loop and writing.
     Ctrl-C during the loop writes the record of the steps so far (status ``interrupted``)
     and raises :class:`~mpclab.sim.RunInterrupted` (a ``KeyboardInterrupt``) again.
     """
     out_dir = Path(out_dir)
-    run = build_run(cfg, out_dir)
+    t0 = time.perf_counter()
+    run = build_run(cfg, out_dir, cache)
     progress = RunProgress(cfg.name, live=sys.stderr.isatty()) if cfg.progress else None
     interrupted = None
+    t1 = time.perf_counter()
     try:
         result = simulate(run, progress=progress)
     except RunInterrupted as exc:
@@ -69,6 +87,7 @@ def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
         run.recorder.close()
         if progress is not None:
             progress.done()
+    t2 = time.perf_counter()
     result.summary = {
         "experiment": cfg.name,
         "plant": getattr(run.plant, "registered_name", type(run.plant).__name__),
@@ -80,6 +99,7 @@ def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
         **run.controller.metrics(result.steps),
         "versions": record.versions(),
     }
+    result.summary["timing"] = {"build_s": t1 - t0, "simulate_s": t2 - t1}
     record.write(out_dir, result.steps, result.horizons, result.summary)
     if interrupted is not None:
         raise interrupted
@@ -87,6 +107,7 @@ def run_experiment(cfg: DictConfig, out_dir: Path) -> RunResult:
         from mpclab.recording.figures import plot_run
 
         plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
+    result.summary["timing"]["write_s"] = time.perf_counter() - t2
     return result
 
 

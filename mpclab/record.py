@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from importlib import metadata
@@ -20,7 +21,7 @@ HORIZONS = "horizons.parquet"
 SUMMARY = "summary.json"
 
 #: columns of steps.parquet whose values depend on wall-clock timing
-TIMING_COLUMNS = ("solve_time_s",)
+TIMING_COLUMNS = ("solve_time_s", "solve_cpu_s")
 
 _VERSIONED = (
     "mpclab", "numpy", "scipy", "pandas", "casadi", "cvxpy", "clarabel", "osqp",
@@ -28,8 +29,9 @@ _VERSIONED = (
 )
 
 
-def versions() -> dict[str, str]:
-    """Versions of Python and the packages a run's numbers depend on."""
+@functools.cache
+def _versions() -> tuple[tuple[str, str], ...]:
+    """Versions of Python and the packages, looked up once per process."""
     import platform
 
     out = {"python": platform.python_version()}
@@ -38,7 +40,12 @@ def versions() -> dict[str, str]:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             pass
-    return out
+    return tuple(out.items())
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the packages a run's numbers depend on."""
+    return dict(_versions())
 
 
 def write(

@@ -30,6 +30,8 @@ from mpclab.world.scenario import Scenario
 #: ``interrupted``: stopped by Ctrl-C (the record holds the steps until then)
 STATUSES = ("arrived", "stalled", "timeout", "collision", "error", "solver_failed",
             "interrupted")
+#: the controller call's CPU time (this thread), beside its wall time ``solve_time_s``
+CPU_COLUMN = "solve_cpu_s"
 
 
 class RunInterrupted(KeyboardInterrupt):
@@ -78,7 +80,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     x = scen.x0.copy()  # the true state
     ctrl.reset(x)
     sup.reset(x, scen.goal)
-    log = _StepLog(plant, H, ctrl.log_columns, world)
+    log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world)
     status, error, k = "error", None, 0
     n_max = int(np.floor(scen.t_max / dt + 1e-9))
     rec.start(run)
@@ -100,11 +102,13 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             measured = world.measure(x)
             ctx = sense(run, t, x, measured)
             mode = ctx.mode
-            t0 = time.perf_counter()
+            c0, t0 = time.thread_time(), time.perf_counter()
             cs = ctrl.step(t, measured, ctx)
             solve_time = time.perf_counter() - t0
             timing = world.timing(cs.u, cs.u_pred, solve_time)
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step
+            cs.info[CPU_COLUMN] = time.thread_time() - c0  # unlike wall time, not inflated
+            # when other processes take the core (parallel sweeps)
             if world.noisy:
                 cs.info["x_measured"] = measured
             if world.delayed:
@@ -283,6 +287,7 @@ def _summary(
 ) -> dict[str, Any]:
     calls = steps[steps["status"] != "final"]
     solve = calls["solve_time_s"].to_numpy()
+    cpu = pd.to_numeric(calls[CPU_COLUMN], errors="coerce").to_numpy(dtype=float)
     total = float(solve.sum())
     ms = solve * 1e3
     clearance = steps["clearance_m"].to_numpy()
@@ -303,6 +308,11 @@ def _summary(
         "compute_p95_ms": float(np.percentile(ms, 95)) if len(ms) else None,
         "compute_max_ms": float(ms.max()) if len(ms) else None,
         "rtf": total / t_end if t_end > 0 else None,
+        "compute_cpu_total_s": float(np.nansum(cpu)),
+        "compute_cpu_median_ms": float(np.nanmedian(cpu) * 1e3) if len(cpu) else None,
+        # CPU over wall time of the controller calls: about 1 on an idle core, lower when
+        # the process waited for a core (a loaded machine) and its wall times are inflated
+        "compute_cpu_share": float(np.nansum(cpu) / total) if total > 0 else None,
         "min_clearance_m": float(np.nanmin(clearance)) if np.isfinite(clearance).any() else None,
         "solver_failures": failures,
         "converged_fraction": counts[SolveStatus.converged] / len(calls) if len(calls) else None,

@@ -24,7 +24,7 @@ DOC = ROOT / "docs" / "architecture.md"
 FLOORS: dict[int, tuple[str, ...]] = {
     0: ("mpclab", "mpclab.errors", "mpclab.status", "mpclab.lazy", "mpclab.quiet",
         "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate",
-        "mpclab.stats", "mpclab.codegen", "mpclab.progress"),
+        "mpclab.stats", "mpclab.codegen", "mpclab.progress", "mpclab.warm", "mpclab.stream"),
     1: ("mpclab.plants", "mpclab.objectives", "mpclab.approx.features", "mpclab.approx.mlp"),
     2: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recording",
         "mpclab.approx.dataset"),
@@ -32,18 +32,14 @@ FLOORS: dict[int, tuple[str, ...]] = {
     4: ("mpclab.experiment",),
     5: ("mpclab.tables",),
     6: ("mpclab.sweeps", "mpclab.approx"),
-    7: ("mpclab.__main__",),
+    7: ("mpclab.__main__", "mpclab.tables.__main__"),
 }
 
 # Known violations today (issue 17 items 2 and 3: other changes remove them). A new one fails.
 #: (importer, imported) going up a floor
-ALLOWED_UP = {
-    ("mpclab.tables", "mpclab.sweeps.figure"),  # inside a function: figure imports tables
-}
+ALLOWED_UP: set[tuple[str, str]] = set()
 #: import cycles (module level and in functions together), as sets of modules
-ALLOWED_CYCLES = [
-    {"mpclab.tables", "mpclab.sweeps.figure"},
-]
+ALLOWED_CYCLES: list[set[str]] = []
 #: modules above the components that composing a config imports (registry.register_all
 #: walks mpclab.approx, which holds the training pipeline)
 ALLOWED_REGISTRY_UP = {

@@ -1,7 +1,7 @@
 """Multirun sweeps end to end through ``python -m mpclab -m``: tables, figure, faults, resume.
 
-Each sweep is a real Hydra multirun in a subprocess (the joblib launcher with its workers),
-shortened by ``+ci=smoke``. ``test_sweep_jobs.py`` checks resume rules in-process.
+Each sweep is a real Hydra multirun in a subprocess (mpclab's pool launcher with its
+workers), shortened by ``+ci=smoke``. ``test_sweep_jobs.py`` checks resume rules in-process.
 """
 
 from __future__ import annotations
@@ -51,6 +51,10 @@ def test_two_backends_three_seeds(tmp_path: Path) -> None:
     assert (tmp_path / "arrival_vs_compute.png").stat().st_size > 0
     assert len(pd.read_csv(tmp_path / "summary.csv")) == 6
     assert "6/6 jobs done, 0 failed" in out
+    # every row was streamed as its job ended; each job names the workers that ran at once
+    rows = (tmp_path / ".mpclab" / "rows.jsonl").read_text().splitlines()
+    assert len(rows) == 6
+    assert (df["load.workers"] == 2).all() and (df["compute_cpu_total_s"] > 0).all()
     # each row is its job's summary.json, and its parameters are the job's overrides
     for row in df.itertuples():
         job = tmp_path / row.job

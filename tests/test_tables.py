@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from mpclab import tables
+from mpclab.sweeps import report
 
 
 def _run(
@@ -131,20 +132,66 @@ def test_backend_names_the_solver_when_it_varies(tmp_path: Path) -> None:
 
 def test_command_writes_every_file(outputs: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = outputs / "tables"
-    assert tables.main([str(outputs / "multirun"), "--out", str(out), "--x", "rtf"]) == 0
+    assert report.main([str(outputs / "multirun"), "--out", str(out), "--x", "rtf"]) == 0
     for name in tables.FILES.values():
         assert (out / name).is_file(), name
     back = pd.read_parquet(out / "summary.parquet")
     assert len(back) == 9 and len(pd.read_csv(out / "summary.csv")) == 9
     assert (out / "arrival_vs_compute.png").read_bytes()[:4] == b"\x89PNG"
     md = (out / "summary.md").read_text()
-    assert "## By backend and scenario" in md and "## Runs (9)" in md
+    # sweep b varies the horizon: a group of its own per horizon
+    assert "## By backend, scenario, controller.horizon" in md and "## Runs (9)" in md
     assert "| casadi " in md and "nan" not in md
     assert "casadi" in capsys.readouterr().out
 
 
 def test_command_refuses_an_empty_folder(tmp_path: Path) -> None:
     with pytest.raises(SystemExit):
-        tables.main([str(tmp_path)])
+        report.main([str(tmp_path)])
     with pytest.raises(FileNotFoundError, match="no such folder"):
         tables.collect([tmp_path / "nope"])
+
+
+def test_groups_split_every_swept_parameter_but_the_seed(tmp_path: Path) -> None:
+    for num, (horizon, seed, arrival) in enumerate([(10, 0, 3.0), (10, 1, 3.4), (20, 0, 2.0),
+                                                    (20, 1, 2.2)]):
+        _run(tmp_path / str(num), [f"controller.horizon={horizon}", f"seed={seed}"],
+             _summary("cvxpy", seed, "arrived", arrival), [float(horizon)])
+    df = tables.collect([tmp_path])
+    assert tables.group_keys(df) == ["backend", "scenario", "controller.horizon"]
+    groups = tables.group_table(df).set_index("controller.horizon")
+    assert groups.loc[10, "runs"] == 2 and groups.loc[20, "runs"] == 2
+    assert groups.loc[10, "arrival_median_s"] == pytest.approx(3.2)
+    assert groups.loc[20, "step_median_ms"] == pytest.approx(20.0)
+
+
+def test_streamed_rows_give_the_same_tables_as_the_folders(outputs: Path) -> None:
+    sweep = outputs / "multirun" / "a"
+    (sweep / ".mpclab").mkdir()
+    for job in ("0", "1", "2", "3", "5"):  # not 4: its process died; it is read from disk
+        tables.stream_row(sweep, sweep / job)
+    streamed, step_ms = tables.collect_runs([sweep], root=sweep)
+    assert sorted(step_ms) == sorted(str((sweep / j).resolve()) for j in ("0", "1", "2", "3", "5"))
+    (sweep / tables.ROWS_FILE).unlink()
+    folders, _ = tables.collect_runs([sweep], root=sweep)
+    pd.testing.assert_frame_equal(streamed, folders)
+    pd.testing.assert_frame_equal(tables.group_table(streamed, step_ms),
+                                  tables.group_table(folders))
+    # a job that ran again after its row was streamed is read from its folder
+    tables.stream_row(sweep, sweep / "0")
+    summary = json.loads((sweep / "0" / "summary.json").read_text())
+    (sweep / "0" / "summary.json").write_text(json.dumps({**summary, "arrival_time_s": 9.9}))
+    again = tables.collect([sweep], root=sweep).set_index("job")
+    assert again.loc["0", "arrival_time_s"] == 9.9
+
+
+def test_contended_runs_are_flagged() -> None:
+    df = pd.DataFrame({
+        "compute_cpu_share": [0.98, 0.5, 0.97, 0.99, None],
+        "load.cores": [2, 2, 2, 2, 2],
+        "load.workers": [2, 2, 4, 1, 1],
+        "load.load_1m_start": [0.5, 0.5, 0.5, 3.5, 0.1],
+        "load.load_1m_end": [1.2, 1.0, 1.0, 0.5, 0.1],
+    })
+    assert tables.contended(df).tolist() == [False, True, True, True, pd.NA]
+    assert tables.contended(pd.DataFrame({"x": [1]})).isna().all()  # no timing recorded

@@ -4,8 +4,11 @@ Hydra composes every job's config before launching any (``validate_batch_is_lega
 aborts the whole sweep on the first failure, e.g. ``controller.horizon=10,ten``. This sweeper
 instead writes that job's ``summary.json`` with ``status: error`` and Hydra's message into its
 job folder, reports it to the callbacks like a finished job, and launches the others with
-their usual job numbers. It lives in the ``hydra_plugins`` namespace because Hydra
-instantiates sweepers only from there; ``conf/hydra/sweeper/tolerant.yaml`` selects it.
+their usual job numbers. It composes through :mod:`mpclab.sweeps.compose` (each defaults tree
+once), and not at all up front when the launcher composes in its workers and records compose
+errors there (mpclab's pool launcher): then the launching process composes nothing. It lives
+in the ``hydra_plugins`` namespace because Hydra instantiates sweepers only from there;
+``conf/hydra/sweeper/tolerant.yaml`` selects it.
 """
 
 from __future__ import annotations
@@ -19,7 +22,12 @@ from typing import Any
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.launcher import Launcher
+from hydra.types import HydraContext
 from omegaconf import DictConfig, OmegaConf, open_dict
+
+from mpclab import record
+from mpclab.sweeps.compose import cached
+from mpclab.sweeps.jobs import error_summary
 
 log = logging.getLogger(__name__)
 
@@ -32,11 +40,15 @@ class TolerantSweeper(BasicSweeper):
         self.compose_errors: dict[tuple[str, ...], Exception] = {}
 
     def setup(self, *, hydra_context: Any, task_function: Any, config: DictConfig) -> None:
+        hydra_context = HydraContext(config_loader=cached(hydra_context.config_loader),
+                                     callbacks=hydra_context.callbacks)
         super().setup(hydra_context=hydra_context, task_function=task_function, config=config)
         self.launcher = _SkipUncomposable(self.launcher, self)
 
     def validate_batch_is_legal(self, batch: Sequence[Sequence[str]]) -> None:
         """Compose every job's config; remember (do not raise) the ones that fail."""
+        if getattr(self.launcher, "composes_in_workers", False):
+            return
         loader = self.hydra_context.config_loader
         for overrides in batch:
             try:
@@ -46,27 +58,36 @@ class TolerantSweeper(BasicSweeper):
                 self.compose_errors[tuple(overrides)] = exc
 
     def record_error(self, idx: int, overrides: Sequence[str], exc: Exception) -> JobReturn:
-        """Write the error row of job ``idx`` and tell the callbacks it ended."""
-        from mpclab import record
-        from mpclab.sweeps.jobs import error_summary
+        return record_compose_error(self.hydra_context, self.config, idx, overrides, exc)
 
-        cfg = copy.deepcopy(self.config)
-        with open_dict(cfg):
-            cfg.hydra.job.num = idx
-            cfg.hydra.job.override_dirname = ""
-        sweep_dir = Path(str(self.config.hydra.sweep.dir))  # the master's: its clock is cached
-        out_dir = sweep_dir / str(OmegaConf.select(cfg, "hydra.sweep.subdir"))
-        choices = OmegaConf.to_container(self.config.hydra.runtime.choices)
-        summary = error_summary(exc, overrides, cfg=None, choices=choices)
-        summary["experiment"] = cfg.get("name")
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / ".hydra").mkdir(exist_ok=True)
-        OmegaConf.save(OmegaConf.create(list(overrides)), out_dir / ".hydra" / "overrides.yaml")
-        record.write_summary(out_dir, summary)
-        ret = JobReturn(overrides=list(overrides), status=JobStatus.COMPLETED,
-                        _return_value=summary, working_dir=str(out_dir))
-        self.hydra_context.callbacks.on_job_end(config=cfg, job_return=ret)
-        return ret
+
+def record_compose_error(
+    hydra_context: HydraContext, master: DictConfig, idx: int, overrides: Sequence[str],
+    exc: Exception,
+) -> JobReturn:
+    """Write the error row of job ``idx`` whose config failed to compose; tell the callbacks.
+
+    ``master`` is the sweep's config (its ``hydra.sweep.dir``, with its clock cached).
+    """
+    cfg = copy.deepcopy(master)
+    with open_dict(cfg):
+        cfg.hydra.job.num = idx
+        cfg.hydra.job.override_dirname = ""
+    sweep_dir = Path(str(master.hydra.sweep.dir))
+    out_dir = sweep_dir / str(OmegaConf.select(cfg, "hydra.sweep.subdir"))
+    choices = OmegaConf.to_container(master.hydra.runtime.choices)
+    summary = error_summary(exc, overrides, cfg=None, choices=choices)
+    summary["experiment"] = cfg.get("name")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / ".hydra").mkdir(exist_ok=True)
+    OmegaConf.save(OmegaConf.create(list(overrides)), out_dir / ".hydra" / "overrides.yaml")
+    record.write_summary(out_dir, summary)
+    ret = JobReturn(overrides=list(overrides), status=JobStatus.COMPLETED,
+                    _return_value=summary, working_dir=str(out_dir))
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(out_dir)
+    hydra_context.callbacks.on_job_end(config=cfg, job_return=ret)
+    return ret
 
 
 class _SkipUncomposable:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -266,6 +267,9 @@ def register_plant(name: str) -> Any:
                 ("substeps", int, dataclasses.field(default=1)),
             ],
         )
+        # importable by name, so that configs holding it pickle (sweep workers copy them)
+        schema.__module__ = cls.__module__
+        setattr(sys.modules[cls.__module__], schema.__name__, schema)
         return component("plant", name, schema)(cls)
 
     return deco

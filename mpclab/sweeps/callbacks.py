@@ -2,16 +2,17 @@
 
 Registered in ``conf/config.yaml`` under ``hydra.callbacks.sweep``. Hydra calls
 ``on_multirun_start`` and ``on_multirun_end`` in the process that launches the sweep and
-``on_job_end`` where each job runs (a joblib or Ray worker), so progress goes through two
-small files in ``<sweep dir>/.mpclab/``: ``sweep.json`` (job count, start time) and
-``progress.jsonl`` (one line per finished job, appended atomically).
+``on_job_end`` where each job runs (a pool, joblib or Ray worker), so progress goes through
+small files in ``<sweep dir>/.mpclab/``: ``sweep.json`` (job count, start time),
+``progress.jsonl`` (one line per finished job, appended atomically) and ``rows.jsonl`` (each
+finished job's table row, :func:`mpclab.tables.stream_row`): the sweep's table grows as jobs
+end, and the tables at the end are made from it.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -21,11 +22,17 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from mpclab import tables
+from mpclab import stream
+
 log = logging.getLogger("mpclab.sweep")
 
 STATE_DIR = ".mpclab"
 SWEEP_FILE = "sweep.json"
 PROGRESS_FILE = "progress.jsonl"
+#: files of one sweep's run, emptied when it starts (rows.jsonl: mpclab.tables.ROWS_FILE)
+STREAMS = (PROGRESS_FILE, "rows.jsonl", "tasks.jsonl")
+BAR_WIDTH = 20
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -58,8 +65,12 @@ def _clock(seconds: float) -> str:
 def progress_line(
     done: int, total: int | None, failed: int, resumed: int, elapsed: float,
 ) -> str:
-    """``'5/16 jobs done, 1 failed, 2 resumed | elapsed 0:00:12 | about 0:00:25 left'``."""
+    """``'[######..............] 5/16 jobs done, 1 failed, 2 resumed | elapsed 0:00:12 |
+    about 0:00:25 left'`` (the bar only when the total is known)."""
     head = f"{done}/{total}" if total else f"{done}"
+    if total:
+        filled = min(BAR_WIDTH, BAR_WIDTH * done // total)
+        head = f"[{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {head}"
     parts = [f"{head} jobs done", f"{failed} failed"]
     if resumed:
         parts.append(f"{resumed} resumed")
@@ -95,17 +106,16 @@ class SweepCallback(Callback):
     """
 
     def __init__(self, figure: bool = True, x: str = "step_ms") -> None:
-        from mpclab.tables import XAxis
-
         self.figure = figure
-        self.x = XAxis(x)
+        self.x = tables.XAxis(x)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         state = Path(config.hydra.sweep.dir) / STATE_DIR
         state.mkdir(parents=True, exist_ok=True)
         total = count_jobs(config)
         (state / SWEEP_FILE).write_text(json.dumps({"total": total, "start": time.time()}))
-        (state / PROGRESS_FILE).write_text("")
+        for name in STREAMS:
+            (state / name).write_text("")
         log.info("sweep of %s jobs into %s", total or "?", config.hydra.sweep.dir)
 
     def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
@@ -117,36 +127,41 @@ class SweepCallback(Callback):
         except (OSError, ValueError):
             return  # not started by this callback (e.g. a job run by hand)
         status, resumed = job_outcome(job_return)
-        entry = json.dumps({"job": config.hydra.job.num, "status": status, "resumed": resumed})
-        fd = os.open(state / PROGRESS_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
-        try:
-            os.write(fd, (entry + "\n").encode())  # one small write: atomic with O_APPEND
-        finally:
-            os.close(fd)
-        rows = [json.loads(x) for x in (state / PROGRESS_FILE).read_text().splitlines() if x]
+        run_dir = OmegaConf.select(config, "hydra.runtime.output_dir")
+        if run_dir:
+            tables.stream_row(config.hydra.sweep.dir, Path(run_dir))
+        stream.append(state / PROGRESS_FILE,
+                      {"job": config.hydra.job.num, "status": status, "resumed": resumed})
+        rows = stream.read(state / PROGRESS_FILE)
         log.info("sweep: %s", progress_line(
             len(rows), meta["total"], sum(r["status"] == "error" for r in rows),
             sum(r["resumed"] for r in rows), time.time() - meta["start"],
         ))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        from mpclab import tables
+        from mpclab.sweeps.report import write_report  # matplotlib: only when a sweep ends
 
         sweep_dir = Path(config.hydra.sweep.dir)
         state = sweep_dir / STATE_DIR
+        jobs_end = time.time()
         try:
             meta = json.loads((state / SWEEP_FILE).read_text())
-            elapsed = time.time() - meta["start"]
+            elapsed = jobs_end - meta["start"]
         except (OSError, ValueError):
-            elapsed = float("nan")
-        df = tables.collect([sweep_dir], root=sweep_dir)
+            meta, elapsed = None, float("nan")
+        t0 = time.perf_counter()
+        report = write_report([sweep_dir], sweep_dir, figure=self.figure, x=self.x)
+        if meta is not None:  # when the jobs ended and how long the tables took (benchmarks)
+            meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
+            (state / SWEEP_FILE).write_text(json.dumps(meta))
+        df = report.runs
         if df.empty:
             log.warning("sweep: no run records in %s", sweep_dir)
             return
-        paths = tables.write_tables(df, sweep_dir, figure=self.figure, x=self.x)
         counts = df["status"].value_counts().to_dict()
         log.info("sweep finished: %d runs in %s, %s", len(df), _clock(elapsed),
                  ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
-        log.info("sweep by backend and scenario:\n%s",
-                 tables.markdown_table(tables.group_table(df)))
-        log.info("sweep files: %s", ", ".join(str(p) for p in paths.values()))
+        log.info("sweep by %s:\n%s", ", ".join(tables.group_keys(df)),
+                 tables.markdown_table(report.groups))
+        log.info("sweep files (written in %.2f s): %s", time.perf_counter() - t0,
+                 ", ".join(str(p) for p in report.files.values()))

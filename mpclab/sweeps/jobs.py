@@ -10,6 +10,7 @@ sweep folder maps every job to the same folder again.
 from __future__ import annotations
 
 import logging
+import os
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,11 +21,14 @@ from omegaconf import DictConfig
 from mpclab import record
 from mpclab.errors import bad_input_message
 from mpclab.tables import override_key
+from mpclab.warm import WORKER_CACHE
 
 log = logging.getLogger("mpclab.sweep")
 
 #: overrides that change how a sweep runs but not what a job computes
 IGNORED_KEYS = ("resume", "progress")
+#: set by the launcher in its workers (hydra_plugins/mpclab_launcher): jobs run at once
+WORKERS_VAR = "MPCLAB_SWEEP_WORKERS"
 
 
 def job_overrides(overrides: Sequence[str]) -> list[str]:
@@ -93,6 +97,7 @@ def error_summary(
 
 def run_job(
     cfg: DictConfig, out_dir: Path, overrides: Sequence[str], choices: dict[str, Any],
+    workers: int | None = None,
 ) -> dict[str, Any]:
     """Run one multirun job into ``out_dir`` and return its summary; never raises ``Exception``.
 
@@ -106,6 +111,13 @@ def run_job(
         The job's task overrides (``hydra.overrides.task``), stored in the summary.
     choices
         Hydra's group choices (``hydra.runtime.choices``), naming components in error rows.
+    workers
+        How many jobs the launcher runs at once (None: unknown); recorded with the load
+        average at the job's start and end (``summary["load"]``), so that compute columns
+        from a loaded machine can be told apart (:func:`mpclab.tables.contended`).
+
+    Plant, objective and controller are reused from an earlier job of this process with the
+    same structure (:mod:`mpclab.warm`).
     """
     from mpclab.experiment import run_experiment
 
@@ -115,14 +127,19 @@ def run_job(
         if done is not None:
             log.info("resume: %s is complete (%s), skipped", out_dir, done.get("status"))
             return {**done, "skipped": True}
+    env = os.environ.get(WORKERS_VAR)
+    workers = int(env) if env else workers
+    load_start = os.getloadavg()[0]
     try:
-        summary = run_experiment(cfg, out_dir).summary
+        summary = run_experiment(cfg, out_dir, cache=WORKER_CACHE).summary
     except Exception as exc:  # the sweep goes on; the row says what happened
         log.error("job failed: %s\n%s", exc, traceback.format_exc())
         summary = error_summary(exc, overrides, cfg, choices)
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         record.write_summary(out_dir, summary)  # an error row has no steps to write
         return summary
-    summary = {**summary, "overrides": overrides}
+    load = {"workers": workers, "cores": os.cpu_count(), "load_1m_start": load_start,
+            "load_1m_end": os.getloadavg()[0]}
+    summary = {**summary, "load": load, "overrides": overrides}
     record.write_summary(out_dir, summary)  # again, now naming its overrides (for resume)
     return summary

@@ -1,21 +1,21 @@
-"""Run records -> pandas tables: one row per run, a grouped table, Markdown, a figure.
-
-``python -m mpclab.tables PATH [PATH ...]`` aggregates every run record found below the
-given folders (one sweep, several sweeps, a whole ``outputs/``) into ``summary.parquet``,
-``summary.csv``, ``summary.md``, ``groups.csv`` and ``arrival_vs_compute.png`` in ``--out``
-(default: the first PATH). The multirun callback does the same for each sweep folder.
+"""Run records -> pandas tables: one row per run, a grouped table, Markdown.
 
 Columns: ``sweep`` and ``job`` (where the run lies), the overridden parameters (one column
 per override key, from ``.hydra/overrides.yaml``), ``backend``, then the summary fields.
 A run folder without a readable ``summary.json`` is kept as a row with status ``incomplete``.
+
+A sweep streams its rows: as each job ends, :func:`stream_row` appends the job's row (and
+its controller calls' solve times, for the grouped table) to ``<sweep>/.mpclab/rows.jsonl``,
+so :func:`collect_runs` reads one file instead of every job's folder, and a sweep that dies
+keeps every finished row. ``python -m mpclab.tables`` (:mod:`mpclab.sweeps.report`) writes
+the tables and the figure for any folders.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -26,7 +26,10 @@ import yaml
 
 from mpclab import record
 from mpclab.status import SOLVE_KEYS, SolveStatus
+from mpclab import stream
 
+#: PyYAML's safe loader, libyaml's where PyYAML has it (5-10 times faster)
+_SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 #: status of a run folder whose summary.json is missing or unreadable
 INCOMPLETE = "incomplete"
 #: summary fields first in the table (others follow in the order they are met)
@@ -45,15 +48,23 @@ SHOWN = (
 )
 FILES = {
     "parquet": "summary.parquet", "csv": "summary.csv", "markdown": "summary.md",
-    "groups": "groups.csv", "figure": "arrival_vs_compute.png",
+    "groups": "groups.csv",
 }
 
 
 class XAxis(StrEnum):
-    """What the arrival-vs-compute figure puts on its x axis."""
+    """What the arrival-vs-compute figure (:mod:`mpclab.sweeps.figure`) puts on its x axis."""
 
     STEP_MS = "step_ms"  # median compute per controller step, ms
     RTF = "rtf"          # compute time / simulated time
+
+
+#: where a sweep streams its rows, relative to the sweep folder
+ROWS_FILE = Path(".mpclab") / "rows.jsonl"
+#: parameters never grouped by: repetitions of the same configuration
+NOT_GROUPED = ("seed",)
+#: a run's controller calls got less than this share of a core (CPU / wall time)
+CONTENDED_SHARE = 0.9
 
 
 def find_runs(paths: Iterable[Path]) -> list[Path]:
@@ -106,7 +117,7 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         summary.update(_choices(run_dir / ".hydra" / "hydra.yaml"))
     overrides_file = run_dir / ".hydra" / "overrides.yaml"
     if overrides_file.is_file():
-        overrides = yaml.safe_load(overrides_file.read_text()) or []
+        overrides = yaml.load(overrides_file.read_text(), Loader=_SafeLoader) or []
     else:
         overrides = summary.get("overrides") or []
     row = {k: v for k, v in summary.items() if k not in DROPPED}
@@ -144,23 +155,80 @@ def _sweep_of(run_dir: Path) -> Path:
     return run_dir.parent
 
 
+def stream_row(sweep_dir: Path, run_dir: Path) -> None:
+    """Append the row of the finished run ``run_dir`` to its sweep's ``rows.jsonl``."""
+    run_dir = Path(run_dir).resolve()
+    row, params = read_run(run_dir)
+    steps = _step_times_ms([str(run_dir)])
+    summary = run_dir / record.SUMMARY
+    mtime = summary.stat().st_mtime_ns if summary.is_file() else None
+    stream.append(Path(sweep_dir) / ROWS_FILE, record.jsonable({
+        "run_dir": str(run_dir), "summary_mtime_ns": mtime, "row": row, "params": params,
+        "step_ms": [round(float(v), 6) for v in steps],
+    }))
+
+
+def _streamed(paths: Iterable[Path]) -> dict[str, dict[str, Any]]:
+    """Streamed rows below ``paths`` by run folder, if still current (same summary.json)."""
+    out: dict[str, dict[str, Any]] = {}
+    for path in map(Path, paths):
+        for rows in (path / ROWS_FILE, *path.glob(f"**/{ROWS_FILE}")):
+            for rec in stream.read(rows):
+                out[rec["run_dir"]] = rec
+    for run_dir in [r for r, rec in out.items()
+                    if _mtime(Path(r) / record.SUMMARY) != rec["summary_mtime_ns"]]:
+        del out[run_dir]
+    return out
+
+
+def _mtime(path: Path) -> int | None:
+    try:
+        return path.stat().st_mtime_ns
+    except FileNotFoundError:
+        return None
+
+
 def collect(paths: Iterable[Path], root: Path | None = None) -> pd.DataFrame:
     """One row per run below ``paths``, sorted by sweep, parameters and job number.
 
     ``sweep`` is relative to ``root`` (default: the current folder); ``run_dir`` is absolute.
     The parameter columns are listed in ``df.attrs["params"]``.
     """
+    return collect_runs(paths, root)[0]
+
+
+def collect_runs(
+    paths: Iterable[Path], root: Path | None = None,
+) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+    """:func:`collect`, and every run's controller-call times in ms by ``run_dir``.
+
+    A run whose row its sweep streamed (and whose summary.json has not changed since) is
+    read from the stream; the others from their folders.
+    """
+    paths = list(map(Path, paths))
     root = Path(root or Path.cwd()).resolve()
-    rows, params = [], {}
+    streamed = _streamed(paths)
+    rows, params, step_ms = [], {}, {}
     for run_dir in find_runs(paths):
-        row, overridden = read_run(run_dir)
+        rec = streamed.get(str(run_dir))
+        if rec is not None:
+            row, overridden = dict(rec["row"]), rec["params"]
+            step_ms[str(run_dir)] = np.asarray(rec["step_ms"], dtype=float)
+        else:
+            row, overridden = read_run(run_dir)
         for key, value in overridden.items():
             params.setdefault(key, None)
             row.setdefault(key, value)  # a summary field of the same name wins
-        row["sweep_dir"] = os.path.relpath(_sweep_of(run_dir), root)
-        row["job"] = os.path.relpath(run_dir, _sweep_of(run_dir))
+        sweep = _sweep_of(run_dir)
+        row["sweep_dir"] = os.path.relpath(sweep, root)
+        row["job"] = os.path.relpath(run_dir, sweep)
         row["run_dir"] = str(run_dir)
         rows.append(row)
+    return _frame(rows, list(params)), step_ms
+
+
+def _frame(rows: list[dict[str, Any]], params: list[str]) -> pd.DataFrame:
+    """The runs table of ``rows``: typed columns, ``backend``, sorted (see :func:`collect`)."""
     df = pd.DataFrame(rows)
     if df.empty:
         df = pd.DataFrame(columns=["sweep_dir", "job", *LEAD, "run_dir"])
@@ -168,7 +236,7 @@ def collect(paths: Iterable[Path], root: Path | None = None) -> pd.DataFrame:
         if col not in df:
             df[col] = None
     df = _tidy(df)
-    df["backend"] = _backend(df, list(params))
+    df["backend"] = _backend(df, params)
     param_cols = [p for p in params if p in df]
     lead = [c for c in LEAD if c in df]
     first = [p for p in param_cols if p not in lead]
@@ -182,8 +250,31 @@ def collect(paths: Iterable[Path], root: Path | None = None) -> pd.DataFrame:
         .drop(columns="_job_num")
         .reset_index(drop=True)
     )
+    df["contended"] = contended(df)
     df.attrs["params"] = param_cols
     return df
+
+
+def contended(df: pd.DataFrame) -> pd.Series:
+    """Runs whose compute columns a loaded machine may have inflated.
+
+    True where the controller calls got less than :data:`CONTENDED_SHARE` of a core (CPU
+    time / wall time), or the sweep ran more workers than there are cores, or the 1-minute
+    load average exceeded the cores during the job; False where none of these was seen;
+    missing where the run has no timing.
+    """
+    share, cores, workers = (_numbers(df, c) for c in
+                             ("compute_cpu_share", "load.cores", "load.workers"))
+    load = np.fmax(_numbers(df, "load.load_1m_start"), _numbers(df, "load.load_1m_end"))
+    flag = (share < CONTENDED_SHARE) | (workers > cores) | (load > cores)
+    return flag.astype("boolean").where(share.notna(), pd.NA)
+
+
+def _numbers(df: pd.DataFrame, col: str) -> pd.Series:
+    """Column ``col`` as floats (all NaN if ``df`` has no such column)."""
+    if col not in df:
+        return pd.Series(np.nan, index=df.index, dtype=float)
+    return pd.to_numeric(df[col], errors="coerce").astype(float)
 
 
 def _tidy(df: pd.DataFrame) -> pd.DataFrame:
@@ -222,18 +313,37 @@ def _step_times_ms(run_dirs: Iterable[str]) -> np.ndarray:
     return np.concatenate(parts) if parts else np.array([])
 
 
-def group_table(df: pd.DataFrame) -> pd.DataFrame:
-    """Per backend x scenario: runs, success rate, median arrival, median and p95 step compute.
+def group_keys(df: pd.DataFrame) -> list[str]:
+    """What the grouped table groups by: backend, scenario and every other parameter the
+    sweep varies, except the seed (a group is the repetitions of one configuration)."""
+    named = {"controller", "scenario", *NOT_GROUPED}
+    if "controller.solver" in df and "controller.solver" in df.attrs.get("params", []):
+        named.add("controller.solver")  # in ``backend`` when it varies
+    swept = [p for p in df.attrs.get("params", []) if p in df and p not in named
+             and df[p].astype(str).nunique(dropna=False) > 1]
+    return ["backend", "scenario", *swept]
 
-    Step compute pools every controller call of the group's runs from ``steps.parquet``.
+
+def group_table(
+    df: pd.DataFrame, step_ms: Mapping[str, np.ndarray] | None = None,
+) -> pd.DataFrame:
+    """Per group (:func:`group_keys`): runs, success rate, median arrival, median and p95
+    compute per controller call (wall and CPU), and runs flagged :func:`contended`.
+
+    Step compute pools every controller call of the group's runs, from ``step_ms`` (run folder
+    -> ms, as :func:`collect_runs` gives) or else from each run's ``steps.parquet``.
     """
+    keys = group_keys(df)
+    step_ms = step_ms or {}
     rows = []
-    for (backend, scenario), g in df.groupby(["backend", "scenario"], dropna=False, sort=True):
-        ms = _step_times_ms(g["run_dir"])
+    for values, g in df.groupby(keys, dropna=False, sort=True):
+        missing = [r for r in g["run_dir"] if r not in step_ms]
+        parts = [step_ms[r] for r in g["run_dir"] if r in step_ms]
+        ms = np.concatenate([*parts, _step_times_ms(missing)])
         arrived = g["status"] == "arrived"
+        flagged = g["contended"] if "contended" in g else pd.Series(dtype="boolean")
         rows.append({
-            "backend": backend,
-            "scenario": scenario,
+            **dict(zip(keys, values, strict=True)),
             "runs": len(g),
             "arrived": int(arrived.sum()),
             "errors": int((g["status"] == "error").sum()),
@@ -242,12 +352,15 @@ def group_table(df: pd.DataFrame) -> pd.DataFrame:
             if arrived.any() else None,
             "step_median_ms": float(np.median(ms)) if ms.size else None,
             "step_p95_ms": float(np.percentile(ms, 95)) if ms.size else None,
+            "step_cpu_median_ms": float(_numbers(g, "compute_cpu_median_ms").median())
+            if _numbers(g, "compute_cpu_median_ms").notna().any() else None,
+            "contended_runs": int(flagged.fillna(False).sum()),
             **_solve_shares(g),
         })
     return pd.DataFrame(rows, columns=[
-        "backend", "scenario", "runs", "arrived", "errors", "success_rate",
-        "arrival_median_s", "step_median_ms", "step_p95_ms", "converged_fraction",
-        *SOLVE_COUNTS,
+        *keys, "runs", "arrived", "errors", "success_rate", "arrival_median_s",
+        "step_median_ms", "step_p95_ms", "step_cpu_median_ms", "contended_runs",
+        "converged_fraction", *SOLVE_COUNTS,
     ])
 
 
@@ -274,7 +387,7 @@ def markdown(df: pd.DataFrame, groups: pd.DataFrame | None = None) -> str:
     if "error" in runs:
         runs["error"] = runs["error"].map(lambda e: e if not isinstance(e, str) else e[:100])
     parts = [
-        "## By backend and scenario", "", markdown_table(groups), "",
+        f"## By {', '.join(group_keys(df))}", "", markdown_table(groups), "",
         f"## Runs ({len(df)})", "", markdown_table(runs), "",
     ]
     return "\n".join(parts)
@@ -289,45 +402,16 @@ def markdown_table(df: pd.DataFrame) -> str:
 
 
 def write_tables(
-    df: pd.DataFrame, out_dir: Path, figure: bool = True, x: XAxis = XAxis.STEP_MS,
+    df: pd.DataFrame, out_dir: Path, groups: pd.DataFrame | None = None,
 ) -> dict[str, Path]:
-    """Write the runs table, the grouped table, Markdown and the figure into ``out_dir``."""
+    """Write the runs table, the grouped table (default: :func:`group_table` of ``df``) and
+    Markdown into ``out_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {key: out_dir / name for key, name in FILES.items()}
-    groups = group_table(df)
+    groups = group_table(df) if groups is None else groups
     df.to_parquet(paths["parquet"], index=False)
     df.to_csv(paths["csv"], index=False)
     groups.to_csv(paths["groups"], index=False)
     paths["markdown"].write_text(markdown(df, groups))
-    if figure:
-        from mpclab.sweeps.figure import plot_arrival_vs_compute
-
-        plot_arrival_vs_compute(df, paths["figure"], XAxis(x))
-    else:
-        del paths["figure"]
     return paths
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m mpclab.tables", description=__doc__.split("\n\n")[0],
-    )
-    parser.add_argument("paths", nargs="+", type=Path, help="outputs or sweep folders")
-    parser.add_argument("--out", type=Path, help="where the tables go (default: first PATH)")
-    parser.add_argument("--x", choices=[a.value for a in XAxis], default=XAxis.STEP_MS.value,
-                        help="figure x axis: compute per step (ms) or compute/simulated time")
-    parser.add_argument("--no-figure", action="store_true", help="tables only")
-    args = parser.parse_args(argv)
-    out = args.out or args.paths[0]
-    df = collect(args.paths, root=out)
-    if df.empty:
-        parser.error(f"no run records below {', '.join(map(str, args.paths))}")
-    paths = write_tables(df, out, figure=not args.no_figure, x=XAxis(args.x))
-    print(markdown_table(group_table(df)))
-    print(f"\n{len(df)} runs -> " + ", ".join(str(p) for p in paths.values()))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,226 @@
+"""A Hydra launcher whose worker processes stay warm from one job to the next.
+
+Hydra's joblib launcher composes every job's config from scratch and its tolerant sweeper
+composes each one again in the launching process before any job starts: that serial part
+dominated a sweep of short jobs (issue 16). This launcher:
+
+* starts ``n_jobs`` worker processes once per sweep (``fork`` by default: they inherit the
+  imports of the launching process, so none imports anything again); with ``n_jobs=1`` the
+  jobs run in the launching process itself;
+* pins each worker's BLAS/OpenMP thread pools to ``threads_per_worker`` threads (one job per
+  core, no oversubscription);
+* sends a worker only a job's number and overrides; the worker composes the job's config
+  (cheaply: :mod:`mpclab.sweeps.compose`) and runs it as Hydra's ``run_job`` does, without
+  its copies of the config (:mod:`.job`): job folders, ``.hydra/`` files, logging and
+  callbacks as with Hydra's launchers; a config that fails to
+  compose becomes the job's error row there (the sweeper does not compose jobs up front);
+* keeps what a worker built between jobs (``mpclab.warm``: the plant, objective and compiled
+  controller of the same structure);
+* returns each job as soon as it ends and writes ``<sweep>/.mpclab/tasks.jsonl`` (per job:
+  worker, time in the worker, time in the closed loop).
+
+Selected by ``conf/hydra/launcher/local.yaml`` (the default); Hydra's joblib launcher stays
+available as ``hydra/launcher=joblib`` and the Ray launcher as ``hydra/launcher=ray_cluster``.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import logging
+import multiprocessing
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from pathlib import Path
+from typing import Any
+
+import cloudpickle
+from hydra.core.singleton import Singleton
+from hydra.core.utils import JobReturn, configure_log, filter_overrides, setup_globals
+from hydra.plugins.launcher import Launcher
+from hydra.types import HydraContext, TaskFunction
+from omegaconf import DictConfig, open_dict
+from threadpoolctl import threadpool_limits
+
+from hydra_plugins.mpclab_launcher.job import run_owned_job
+from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_compose_error
+from mpclab.sweeps.callbacks import STATE_DIR
+from mpclab.sweeps.compose import cached
+
+log = logging.getLogger(__name__)
+
+#: environment variables that size thread pools of BLAS, OpenMP and friends
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+               "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+#: how many workers the sweep runs at once, for the jobs' records (mpclab.sweeps.jobs)
+WORKERS_VAR = "MPCLAB_SWEEP_WORKERS"
+TASKS_FILE = "tasks.jsonl"
+START_METHODS = ("fork", "forkserver", "spawn")
+
+#: what a worker needs to run a job, set once per worker by :func:`_init_worker`
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(
+    hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
+    singleton_state: dict[Any, Any], threads: int, workers: int,
+) -> None:
+    for var in THREAD_VARS:
+        os.environ[var] = str(threads)
+    os.environ[WORKERS_VAR] = str(workers)
+    threadpool_limits(threads)  # pools already loaded (numpy's BLAS) follow the variables
+    setup_globals()
+    Singleton.set_state(singleton_state)
+    hydra_context.config_loader = cached(hydra_context.config_loader)
+    _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function)
+
+
+def _init_pickled(blob: bytes) -> None:
+    """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
+    (Hydra's configs hold classes that the standard pickle cannot find by name)."""
+    _init_worker(*cloudpickle.loads(blob))
+
+
+def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, Any]]:
+    """Compose and run job ``idx`` in this worker; the result without its configs."""
+    if _WORKER.setdefault("jobs", 0) == 1:
+        # what the first job built stays: out of the garbage collector's way, so that
+        # its full collections (tens of ms over the configs and solvers) do not recur
+        gc.collect()
+        gc.freeze()
+    _WORKER["jobs"] += 1
+    t0, start = time.perf_counter(), time.time()
+    ctx, config = _WORKER["hydra_context"], _WORKER["config"]
+    try:
+        sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
+        task_cfg = ctx.config_loader.load_sweep_config(config, list(overrides))  # a 2nd copy
+    except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
+        log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
+        ret = record_compose_error(ctx, config, idx, overrides, exc)
+    else:
+        with open_dict(sweep_config):
+            sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
+            sweep_config.hydra.job.num = idx
+        ret = run_owned_job(ctx, sweep_config, task_cfg, _WORKER["task_function"])
+    task_s = time.perf_counter() - t0
+    value = ret._return_value
+    timing = value.get("timing", {}) if isinstance(value, dict) else {}
+    info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, **timing}
+    return ret, info
+
+
+class PoolLauncher(Launcher):
+    """Runs a sweep's jobs on ``n_jobs`` warm worker processes (module docstring).
+
+    Parameters
+    ----------
+    n_jobs
+        Worker processes; -1: one per core this process may use.
+    threads_per_worker
+        BLAS/OpenMP threads of each worker.
+    start_method
+        ``fork`` (workers inherit the imports), ``forkserver`` or ``spawn``.
+    """
+
+    #: the sweeper leaves composing (and compose errors) to the workers
+    composes_in_workers = True
+
+    def __init__(self, n_jobs: int = -1, threads_per_worker: int = 1,
+                 start_method: str = "fork") -> None:
+        if start_method not in START_METHODS:
+            raise ValueError(f"hydra.launcher.start_method={start_method!r}: one of "
+                             f"{', '.join(START_METHODS)}")
+        if int(threads_per_worker) < 1:
+            raise ValueError(f"hydra.launcher.threads_per_worker={threads_per_worker}: >= 1")
+        if int(n_jobs) == 0 or int(n_jobs) < -1:
+            raise ValueError(f"hydra.launcher.n_jobs={n_jobs}: -1 (every core) or >= 1")
+        self.n_jobs = int(n_jobs)
+        self.threads = int(threads_per_worker)
+        self.start_method = start_method
+        self.config: DictConfig | None = None
+        self.hydra_context: HydraContext | None = None
+        self.task_function: TaskFunction | None = None
+
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
+              config: DictConfig) -> None:
+        self.config = config
+        self.hydra_context = hydra_context
+        self.task_function = task_function
+
+    def workers(self, n_tasks: int) -> int:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+        n = (cores or os.cpu_count() or 1) if self.n_jobs == -1 else self.n_jobs
+        return max(1, min(n, n_tasks))
+
+    def launch(self, job_overrides: Sequence[Sequence[str]],
+               initial_job_idx: int) -> Sequence[JobReturn]:
+        assert self.config is not None and self.hydra_context is not None
+        setup_globals()
+        configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
+        sweep_dir = Path(str(self.config.hydra.sweep.dir))
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        n = self.workers(len(job_overrides))
+        log.info("mpclab pool launcher: %d jobs on %d warm worker%s (%s), sweep folder %s",
+                 len(job_overrides), n, "" if n == 1 else "s",
+                 "in this process" if n == 1 else self.start_method, sweep_dir)
+        for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
+            log.debug("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
+        init = (self.hydra_context, self.config, self.task_function, Singleton.get_state(),
+                self.threads, n)
+        jobs = list(enumerate(job_overrides, start=initial_job_idx))
+        if n == 1:
+            results = self._in_process(jobs, init)
+        else:
+            results = self._on_pool(jobs, init, n)
+        _write_tasks(sweep_dir, [info for _, info in results.values()])
+        return [results[idx][0] for idx, _ in jobs]
+
+    def _in_process(self, jobs: list[tuple[int, Sequence[str]]],
+                    init: tuple[Any, ...]) -> dict[int, tuple[JobReturn, dict[str, Any]]]:
+        saved = {v: os.environ.get(v) for v in (*THREAD_VARS, WORKERS_VAR)}
+        limits = threadpool_limits(self.threads)
+        try:
+            _init_worker(*init)
+            return {idx: _run_one(idx, ov) for idx, ov in jobs}
+        finally:
+            limits.restore_original_limits()
+            for var, value in saved.items():
+                if value is None:
+                    os.environ.pop(var, None)
+                else:
+                    os.environ[var] = value
+
+    def _on_pool(self, jobs: list[tuple[int, Sequence[str]]], init: tuple[Any, ...],
+                 n: int) -> dict[int, tuple[JobReturn, dict[str, Any]]]:
+        ctx = multiprocessing.get_context(self.start_method)
+        results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}
+        if self.start_method == "fork":  # inherited, not pickled
+            initializer, initargs = _init_worker, init
+        else:
+            initializer, initargs = _init_pickled, (cloudpickle.dumps(init),)
+        pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=initializer,
+                                   initargs=initargs)
+        try:
+            pending: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
+                                          for idx, ov in jobs}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    results[pending.pop(fut)] = fut.result()
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        # every job is done: the workers exit while this process writes the sweep's tables
+        pool.shutdown(wait=False)
+        return results
+
+
+def _write_tasks(sweep_dir: Path, infos: list[dict[str, Any]]) -> None:
+    """Append each job's time in its worker to ``<sweep>/.mpclab/tasks.jsonl``."""
+    state = sweep_dir / STATE_DIR
+    state.mkdir(parents=True, exist_ok=True)
+    with open(state / TASKS_FILE, "a") as f:
+        for info in sorted(infos, key=lambda i: i["job"]):
+            f.write(json.dumps(info) + "\n")

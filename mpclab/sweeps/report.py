@@ -1,0 +1,75 @@
+"""A sweep's report: the tables of :mod:`mpclab.tables` and the arrival-vs-compute figure.
+
+``python -m mpclab.tables PATH [PATH ...]`` (or ``python -m mpclab.sweeps.report``)
+aggregates every run record found below the given folders (one sweep, several sweeps, a whole
+``outputs/``) into ``summary.parquet``, ``summary.csv``, ``summary.md``, ``groups.csv`` and
+``arrival_vs_compute.png`` in ``--out`` (default: the first PATH). The multirun callback
+does the same for each sweep folder when it ends, from the rows the jobs streamed.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from mpclab import tables
+from mpclab.sweeps.figure import plot_arrival_vs_compute
+from mpclab.tables import XAxis
+
+FIGURE = "arrival_vs_compute.png"
+
+
+@dataclass
+class Report:
+    """The runs table, the grouped table and the files written."""
+
+    runs: pd.DataFrame
+    groups: pd.DataFrame
+    files: dict[str, Path]
+
+
+def write_report(
+    paths: Iterable[Path], out_dir: Path, figure: bool = True, x: XAxis = XAxis.STEP_MS,
+) -> Report:
+    """Collect the runs below ``paths``; write tables (and the figure) into ``out_dir``.
+
+    Nothing is written when there are no runs.
+    """
+    df, step_ms = tables.collect_runs(paths, root=out_dir)
+    if df.empty:
+        return Report(df, pd.DataFrame(), {})
+    groups = tables.group_table(df, step_ms)
+    files = tables.write_tables(df, out_dir, groups)
+    if figure:
+        files["figure"] = plot_arrival_vs_compute(df, Path(out_dir) / FIGURE, XAxis(x))
+    return Report(df, groups, files)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m mpclab.tables", description=__doc__.split("\n\n")[0],
+    )
+    parser.add_argument("paths", nargs="+", type=Path, help="outputs or sweep folders")
+    parser.add_argument("--out", type=Path, help="where the tables go (default: first PATH)")
+    parser.add_argument("--x", choices=[a.value for a in XAxis], default=XAxis.STEP_MS.value,
+                        help="figure x axis: compute per step (ms) or compute/simulated time")
+    parser.add_argument("--no-figure", action="store_true", help="tables only")
+    args = parser.parse_args(argv)
+    out = args.out or args.paths[0]
+    for path in args.paths:
+        if not path.exists():
+            parser.error(f"no such folder: {path}")
+    report = write_report(args.paths, out, figure=not args.no_figure, x=XAxis(args.x))
+    if report.runs.empty:
+        parser.error(f"no run records below {', '.join(map(str, args.paths))}")
+    print(tables.markdown_table(report.groups))
+    print(f"\n{len(report.runs)} runs -> " + ", ".join(str(p) for p in report.files.values()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
