@@ -3,7 +3,8 @@
 ``python -m mpclab.tables PATH [PATH ...]`` (or ``python -m mpclab.sweeps.report``)
 aggregates every run record found below the given folders (one sweep, several sweeps, a whole
 ``outputs/``) into ``summary.parquet``, ``summary.csv``, ``summary.md``, ``groups.csv`` and
-``arrival_vs_compute.png`` in ``--out`` (default: the first PATH). The multirun callback
+``arrival_vs_compute.png`` in ``--out`` (default: the first PATH), and for a sweep over a
+numeric ``sim.*`` level (noise, latency scale, mismatch) ``robustness_<level>.png``. The multirun callback
 does the same for each sweep folder when it ends, from the rows the jobs streamed.
 """
 
@@ -18,6 +19,7 @@ import pandas as pd
 
 from mpclab import tables
 from mpclab.sweeps.figure import plot_arrival_vs_compute
+from mpclab.sweeps.robustness import plot_robustness, robustness_levels
 from mpclab.tables import XAxis
 
 FIGURE = "arrival_vs_compute.png"
@@ -46,6 +48,9 @@ def write_report(
     files = tables.write_tables(df, out_dir, groups)
     if figure:
         files["figure"] = plot_arrival_vs_compute(df, Path(out_dir) / FIGURE, XAxis(x))
+        for level in robustness_levels(df):  # a sweep over a sim.* level
+            files[f"robustness:{level}"] = plot_robustness(
+                df, level, Path(out_dir) / f"robustness_{level.removeprefix('sim.')}.png")
     return Report(df, groups, files)
 
 

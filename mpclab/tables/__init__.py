@@ -25,6 +25,7 @@ import pandas as pd
 import yaml
 
 from mpclab import record
+from mpclab.stats import clopper_pearson
 from mpclab.status import SOLVE_KEYS, SolveStatus
 from mpclab import stream
 
@@ -327,7 +328,8 @@ def group_keys(df: pd.DataFrame) -> list[str]:
 def group_table(
     df: pd.DataFrame, step_ms: Mapping[str, np.ndarray] | None = None,
 ) -> pd.DataFrame:
-    """Per group (:func:`group_keys`): runs, success rate, median arrival, median and p95
+    """Per group (:func:`group_keys`): runs, success rate with its exact 95 % interval
+    (Clopper-Pearson: ``success_low``, ``success_high``), median arrival, median and p95
     compute per controller call (wall and CPU), and runs flagged :func:`contended`.
 
     Step compute pools every controller call of the group's runs, from ``step_ms`` (run folder
@@ -348,6 +350,8 @@ def group_table(
             "arrived": int(arrived.sum()),
             "errors": int((g["status"] == "error").sum()),
             "success_rate": float(arrived.mean()),
+            **dict(zip(("success_low", "success_high"),
+                       clopper_pearson(int(arrived.sum()), len(g)), strict=True)),
             "arrival_median_s": float(g.loc[arrived, "arrival_time_s"].median())
             if arrived.any() else None,
             "step_median_ms": float(np.median(ms)) if ms.size else None,
@@ -358,7 +362,8 @@ def group_table(
             **_solve_shares(g),
         })
     return pd.DataFrame(rows, columns=[
-        *keys, "runs", "arrived", "errors", "success_rate", "arrival_median_s",
+        *keys, "runs", "arrived", "errors", "success_rate", "success_low", "success_high",
+        "arrival_median_s",
         "step_median_ms", "step_p95_ms", "step_cpu_median_ms", "contended_runs",
         "converged_fraction", *SOLVE_COUNTS,
     ])
