@@ -22,8 +22,7 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from mpclab import tables
-from mpclab import stream
+from mpclab import stream, tables
 
 log = logging.getLogger("mpclab.sweep")
 

@@ -4,8 +4,9 @@
 aggregates every run record found below the given folders (one sweep, several sweeps, a whole
 ``outputs/``) into ``summary.parquet``, ``summary.csv``, ``summary.md``, ``groups.csv`` and
 ``arrival_vs_compute.png`` in ``--out`` (default: the first PATH), and for a sweep over a
-numeric ``sim.*`` level (noise, latency scale, mismatch) ``robustness_<level>.png``. The multirun callback
-does the same for each sweep folder when it ends, from the rows the jobs streamed.
+numeric ``sim.*`` level (noise, latency scale, mismatch) ``robustness_<level>.png``. The
+multirun callback does the same for each sweep folder when it ends, from the rows the jobs
+streamed.
 """
 
 from __future__ import annotations

@@ -24,10 +24,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from mpclab import record
+from mpclab import record, stream
 from mpclab.stats import clopper_pearson
 from mpclab.status import SOLVE_KEYS, SolveStatus
-from mpclab import stream
 
 #: PyYAML's safe loader, libyaml's where PyYAML has it (5-10 times faster)
 _SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
