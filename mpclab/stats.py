@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from scipy.stats import beta
+from scipy.special import betaincinv  # the beta distribution's quantile (scipy.stats is slow
+# to import, and every run imports the tables)
 
 
 def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
@@ -15,6 +16,6 @@ def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[f
     if n == 0:
         return float("nan"), float("nan")
     alpha = 1.0 - float(level)
-    lo = 0.0 if k == 0 else float(beta.ppf(alpha / 2, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(1 - alpha / 2, k + 1, n - k))
+    lo = 0.0 if k == 0 else float(betaincinv(k, n - k + 1, alpha / 2))
+    hi = 1.0 if k == n else float(betaincinv(k + 1, n - k, 1 - alpha / 2))
     return lo, hi
