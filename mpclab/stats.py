@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from scipy.special import betaincinv  # the beta distribution's quantile (scipy.stats is slow
+
 # to import, and every run imports the tables)
 
 

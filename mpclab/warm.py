@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 from collections import OrderedDict
-from collections.abc import Callable
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
@@ -54,14 +53,6 @@ class ComponentCache:
         self._built[structure_key(cfg)] = made
         while len(self._built) > self.size:
             self._built.popitem(last=False)
-
-    def get(self, cfg: DictConfig, build: Callable[[], tuple[Any, Any, Any]]) -> tuple[Any, ...]:
-        """The components for ``cfg``: reused if built before for the same key, else built."""
-        made = self.lookup(cfg)
-        if made is None:
-            made = build()
-            self.store(cfg, made)
-        return made
 
 
 #: the cache of this process (a sweep worker); used only by sweep jobs (mpclab.sweeps.jobs)

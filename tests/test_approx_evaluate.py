@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from conftest import compose_cfg
-from mpclab.approx.evaluate import StageCost, clopper_pearson
+from mpclab.approx.evaluate import StageCost
+from mpclab.stats import clopper_pearson
 
 
 def test_clopper_pearson_matches_the_closed_forms_at_the_edges() -> None:

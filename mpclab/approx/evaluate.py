@@ -20,16 +20,7 @@ from mpclab.approx.dataset import run_dirs
 from mpclab.approx.features import features
 from mpclab.experiment import build_run
 from mpclab.objectives.base import TermContext
-
-
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """Exact (Clopper–Pearson) confidence interval of a success rate ``k / n``."""
-    from scipy.stats import binomtest  # 0.5 s to import: not at startup of every run
-
-    if n == 0:
-        return (float("nan"), float("nan"))
-    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
-    return float(ci.low), float(ci.high)
+from mpclab.stats import clopper_pearson
 
 
 def outcomes(sweep: Path) -> pd.DataFrame:
