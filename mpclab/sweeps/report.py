@@ -51,7 +51,7 @@ def write_report(
         files["figure"] = plot_arrival_vs_compute(df, Path(out_dir) / FIGURE, XAxis(x))
         for level in robustness_levels(df):  # a sweep over a sim.* level
             files[f"robustness:{level}"] = plot_robustness(
-                df, level, Path(out_dir) / f"robustness_{level.removeprefix('sim.')}.png")
+                groups, level, Path(out_dir) / f"robustness_{level.removeprefix('sim.')}.png")
     return Report(df, groups, files)
 
 
