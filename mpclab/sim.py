@@ -146,11 +146,8 @@ def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None)
     """
     scen, ctrl = run.scenario, run.controller
     measured = x if measured is None else measured
-    if run.world is None:
-        detections, ranges = scen.sense(x)
-    else:
-        detections, ranges = scen.sense(x, believed=measured,
-                                        perturb=run.world.perturb_ranges)
+    perturb = None if run.world is None else run.world.perturb_ranges
+    detections, ranges = scen.sense(x, believed=measured, perturb=perturb)
     mode, active = run.supervisor.update(t, measured, detections)
     return StepContext(
         goal=scen.goal, target=scen.target(t, ctrl.horizon, ctrl.dt), detections=detections,

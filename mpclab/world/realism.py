@@ -143,17 +143,14 @@ class SimWorld:
         self.plant_params = dict(plant_params or {})
         self.plant = plant.variant(self.plant_params, self.substeps, where="sim.plant_params")
         self.rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_STREAM,)))
+        #: what the world adds to the loop, decided once: state noise, input latency
+        self.noisy = bool(self.state_std.any())
+        self.delayed = self.latency is not Latency.none
+        self._walk = bool(self.walk_std.any())
         self._plan: FloatArray | None = None  # the inputs of the last plan in time
         self._plan_age = 0
 
     # ---------------------------------------------------------------- what it adds
-    @property
-    def noisy(self) -> bool:
-        return bool(self.state_std.any())
-
-    @property
-    def delayed(self) -> bool:
-        return self.latency is not Latency.none
 
     def reset(self, nu: int) -> None:
         self._plan, self._plan_age = None, 0
@@ -204,7 +201,7 @@ class SimWorld:
         else:
             x = plant.step(plant.step(x, self.applied, tau), timing.applied, dt - tau)
         self.applied = timing.applied
-        if self.walk_std.any():
+        if self._walk:
             x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
         return x
 
@@ -226,9 +223,11 @@ def _latency(value: Any) -> tuple[Latency, float]:
         return Latency.fixed, _nonneg(value, "sim.latency") / 1e3
     text = str(value)
     try:
-        return Latency.fixed, _nonneg(float(text), "sim.latency") / 1e3
+        ms = float(text)
     except ValueError:
-        pass
+        ms = None
+    if ms is not None:  # a number given as text (the command line): checked as a number
+        return Latency.fixed, _nonneg(ms, "sim.latency") / 1e3
     if text == Latency.fixed.value:
         raise ConfigError("sim.latency: give the fixed latency as a number of ms, e.g. 33.8")
     return parse_choice(Latency, text, "sim.latency"), 0.0
