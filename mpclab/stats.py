@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from scipy.special import betaincinv  # the beta distribution's quantile (scipy.stats is slow
+from mpclab.lazy import lazy_import
 
-# to import, and every run imports the tables)
+# the beta distribution's quantile comes from scipy.special (scipy.stats is slow to import),
+# loaded at the first interval: a run that makes none does not import scipy
+special = lazy_import("scipy.special")
 
 
 def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
@@ -17,6 +19,6 @@ def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[f
     if n == 0:
         return float("nan"), float("nan")
     alpha = 1.0 - float(level)
-    lo = 0.0 if k == 0 else float(betaincinv(k, n - k + 1, alpha / 2))
-    hi = 1.0 if k == n else float(betaincinv(k + 1, n - k, 1 - alpha / 2))
+    lo = 0.0 if k == 0 else float(special.betaincinv(k, n - k + 1, alpha / 2))
+    hi = 1.0 if k == n else float(special.betaincinv(k + 1, n - k, 1 - alpha / 2))
     return lo, hi

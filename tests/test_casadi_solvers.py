@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from mpclab.codegen import build as codegen_build
+from mpclab.controllers import casadi_compile
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.controllers.casadi_ocp import Params
@@ -144,6 +145,10 @@ def _small(**kw) -> CasadiMPC:  # a small NLP: compiles in about a second at -O0
                      max_detections=0, initial_input={"u1": 2.0, "u2": 2.0}, **kw)
 
 
+def _no_source(write) -> str:
+    raise AssertionError("the C source was written again")
+
+
 def test_jit_compiles_once_and_then_hits_the_cache(tmp_path, monkeypatch) -> None:
     if codegen_build.find_compiler() is None:
         pytest.skip("no C compiler")
@@ -153,9 +158,16 @@ def test_jit_compiles_once_and_then_hits_the_cache(tmp_path, monkeypatch) -> Non
     assert first.compiled and codegen_build.compile_count == before + 1
     (lib,) = tmp_path.glob("nlp_*.so")
     stamp = os.stat(lib).st_mtime_ns
-    second = _small(solver="fatrop", jit=True, jit_flags=["-O0"])
+    # found through the index of the problem's key: the C is not even written again
+    with monkeypatch.context() as m:
+        m.setattr(casadi_compile, "generated_c", _no_source)
+        second = _small(solver="fatrop", jit=True, jit_flags=["-O0"])
     assert second.compiled and codegen_build.compile_count == before + 1  # no recompile
-    assert os.stat(lib).st_mtime_ns == stamp and len(list(tmp_path.iterdir())) == 1
+    assert os.stat(lib).st_mtime_ns == stamp
+    assert sorted(p.suffix for p in tmp_path.iterdir()) == [".lib", ".so"]  # library, index
+    lib.unlink()  # an index whose library is gone: compiled again
+    assert _small(solver="fatrop", jit=True, jit_flags=["-O0"]).compiled
+    assert codegen_build.compile_count == before + 2 and lib.is_file()
     # the compiled functions solve the same problem as the symbolic ones
     x, goal = np.array([0.4, 0.8, -1.2]), np.array([0.4, 0.4, 0.0])
     ctx = StepContext(goal=goal, target=np.tile(goal, (4, 1)))

@@ -43,7 +43,7 @@ def backend_axis() -> str:
 def test_two_backends_three_seeds(tmp_path: Path) -> None:
     axis = backend_axis()
     out = sweep("+experiment=car_cvxpy", "+ci=smoke", "scenario.t_max=4.0", axis, "seed=0,1,2",
-                "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}")
+                "figures.enabled=true", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}")
     df = pd.read_parquet(tmp_path / "summary.parquet")
     assert len(df) == 6
     assert df["backend"].nunique() == 2 and df.groupby("backend")["seed"].nunique().eq(3).all()
@@ -80,6 +80,7 @@ def test_failed_jobs_are_rows_and_the_same_sweep_resumes(tmp_path: Path) -> None
     assert df.loc["1", "error"] == "controller.horizon must be >= 1, got -1"
     assert df.loc["2", "status"] == "error" and "'ten'" in df.loc["2", "error"]
     assert df.loc["2", "controller"] == "cvxpy"  # named even though it never composed
+    assert not (tmp_path / "arrival_vs_compute.png").exists()  # +ci=smoke: no figures at all
     steps = tmp_path / "0" / "steps.parquet"
     before = steps.stat().st_mtime_ns
     # the same sweep again (here launched without workers): the complete job is skipped,

@@ -4,7 +4,8 @@ The library is named by a hash of the C source text, the compiler, its flags and
 key (the CasADi version for CasADi's generated code) in the cache folder (``$MPCLAB_CACHE``,
 else ``~/.cache/mpclab``), so only the first build pays the compile. It is compiled under a
 temporary name and renamed into place: parallel sweep workers that compile the same source at
-once each write a whole file, and readers never see a partial one.
+once each write a whole file, and readers never see a partial one. :func:`compile_indexed`
+also skips writing the source when a cheaper key of what shapes it was seen before.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import os
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 #: libraries compiled by this process (a cache hit does not count): for tests and reports
@@ -89,4 +90,40 @@ def compile_shared(
     finally:
         for leftover in (src_name, tmp_lib):
             Path(leftover).unlink(missing_ok=True)
+    return lib
+
+
+def compile_indexed(
+    shape_key: str, source: Callable[[], str], prefix: str, flags: Sequence[str],
+    extra_key: Sequence[str] = (),
+) -> Path:
+    """:func:`compile_shared` of ``source()``, without writing the source when a library was
+    compiled before from what ``shape_key`` names.
+
+    Writing the source can cost more than loading its library (CasADi generates the
+    derivatives of an NLP to write its C: a quarter of a second for the Zumo NLP). So the
+    cache also keeps an index, ``PREFIX_INDEX.lib``, from a cheap key of everything that
+    shapes the source (``shape_key``: for CasADi the serialized problem and the solver's
+    options; the compiler, flags and extras are added here) to the library compiled from it;
+    an index entry whose library is gone is rebuilt.
+    """
+    cc = find_compiler()
+    if cc is None:
+        raise CompileError("no C compiler found (set CC)")
+    folder = cache_dir()
+    index = folder / f"{prefix}_{source_key(shape_key, cc, flags, extra_key)}.lib"
+    try:
+        lib = folder / index.read_text().strip()
+        if lib.is_file():
+            return lib
+    except OSError:
+        pass
+    lib = compile_shared(source(), prefix, flags, extra_key)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{index.name}.", dir=folder)
+        with os.fdopen(fd, "w") as f:
+            f.write(lib.name)
+        os.replace(tmp, index)  # atomic, like the library
+    except OSError:
+        pass  # no index: the next build writes the source again and finds the library
     return lib

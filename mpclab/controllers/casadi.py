@@ -241,11 +241,10 @@ class CasadiMPC(Controller):
         )
         opts.update(extra)
         with c_stdout_silenced():  # qpOASES prints its banner whenever one is built
-            fn = ca.nlpsol("mpc", name, ocp.nlp, opts)
+            lib = (compiled_nlp(ocp.nlp, name, opts, self.jit_flags)
+                   if self.jit and not self.codegen else None)
+            fn = ca.nlpsol("mpc", name, str(lib) if lib else ocp.nlp, opts)
             gen = GeneratedSolver(fn, ocp, self.jit_flags, self.tol) if self.codegen else None
-            lib = compiled_nlp(fn, self.jit_flags) if self.jit and gen is None else None
-            if lib is not None:
-                fn = ca.nlpsol("mpc", name, str(lib), opts)
             buffer, trigger, io = bind_buffers(gen.fn if gen else fn, {
                 "lbx": ocp.lbw, "ubx": ocp.ubw, "lbg": ocp.lbg, "ubg": ocp.ubg})
         return _NLP(names, ocp, fn, buffer, trigger, io, lib is not None or gen is not None,

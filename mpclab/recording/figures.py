@@ -5,11 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")  # no display needed
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from mpclab.lazy import pyplot
 
 PATH_PNG = "path.png"
 SERIES_PNG = "series.png"
@@ -29,6 +27,7 @@ def plot_path(result: Any, run: Any, path: Path, dpi: int = 110) -> Path:
     plant, scen = run.plant, run.scenario
     px, py = plant.position
     steps, hz = result.steps, result.horizons
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 6.4))
     for _, h in hz.groupby("step", sort=True):
         ax.plot(h[px], h[py], "-", color="tab:blue", lw=0.7, alpha=0.5)
@@ -69,6 +68,7 @@ def plot_series(result: Any, run: Any, path: Path, dpi: int = 110) -> Path:
     plant = run.plant
     steps = result.steps
     labels = [(s, "state") for s in plant.plot_states] + [(u, "input") for u in plant.inputs]
+    plt = pyplot()
     fig, axes = plt.subplots(len(labels), 1, figsize=(7.0, 1.8 * len(labels)), sharex=True)
     axes = np.atleast_1d(axes)
     for ax, (label, kind) in zip(axes, labels, strict=True):

@@ -99,7 +99,8 @@ class SweepCallback(Callback):
     Parameters
     ----------
     figure
-        Draw ``arrival_vs_compute.png`` in the sweep folder.
+        Draw ``arrival_vs_compute.png`` in the sweep folder (unless the sweep's config says
+        ``figures.enabled=false``).
     x
         Its x axis: ``step_ms`` or ``rtf`` (see :class:`mpclab.tables.XAxis`).
     """
@@ -149,7 +150,9 @@ class SweepCallback(Callback):
         except (OSError, ValueError):
             meta, elapsed = None, float("nan")
         t0 = time.perf_counter()
-        report = write_report([sweep_dir], sweep_dir, figure=self.figure, x=self.x)
+        # figures.enabled=false turns off the sweep's figure too, not only the runs'
+        figure = self.figure and OmegaConf.select(config, "figures.enabled", default=True)
+        report = write_report([sweep_dir], sweep_dir, figure=bool(figure), x=self.x)
         if meta is not None:  # when the jobs ended and how long the tables took (benchmarks)
             meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
             (state / SWEEP_FILE).write_text(json.dumps(meta))

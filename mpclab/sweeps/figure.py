@@ -4,14 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import pandas as pd
 
-matplotlib.use("Agg")  # no display needed
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-from matplotlib.ticker import FuncFormatter  # noqa: E402
-
-from mpclab.tables import XAxis  # noqa: E402
+from mpclab.lazy import pyplot
+from mpclab.tables import XAxis
 
 _X = {
     XAxis.STEP_MS: ("compute_median_ms", "median compute per step [ms]"),
@@ -35,6 +31,7 @@ def plot_arrival_vs_compute(
     x
         ``step_ms``: median compute per controller step; ``rtf``: compute / simulated time.
     """
+    plt = pyplot()
     xcol, xlabel = _X[XAxis(x)]
     df = df.assign(**{c: df.get(c) for c in (xcol, "arrival_time_s", "experiment")})
     backends = sorted(df["backend"].dropna().unique())
@@ -78,7 +75,7 @@ def plot_arrival_vs_compute(
     xs = pd.to_numeric(df[xcol], errors="coerce").dropna()
     if len(xs) and (xs > 0).all() and xs.max() > 20 * xs.min():  # backends decades apart
         axf.set_xscale("log")
-        axf.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axf.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
     names = sorted(df["experiment"].dropna().astype(str).unique())
     title = ", ".join(names) if len(names) <= 3 else f"{len(names)} experiments"
     title = title or "sweep"

@@ -10,12 +10,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+from mpclab.lazy import pyplot
 
 
 def robustness_levels(df: pd.DataFrame) -> list[str]:
@@ -35,6 +33,7 @@ def plot_robustness(groups: pd.DataFrame, level: str, path: Path, dpi: int = 110
     (:func:`mpclab.tables.group_table`: its rows per swept level, with ``success_low`` and
     ``success_high``)."""
     lines = [c for c in ("backend", "scenario") if groups[c].nunique(dropna=False) > 1]
+    plt = pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(6.5, 5.5), sharex=True)
     for key, g in groups.groupby(lines or ["backend"], sort=True, dropna=False):
         g = g.assign(_x=pd.to_numeric(g[level], errors="coerce")).sort_values("_x")
