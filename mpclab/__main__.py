@@ -25,6 +25,7 @@ from mpclab.errors import bad_input_message
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
+from mpclab.sweeps.compose import composing_once
 
 register_all()  # every component's schema must be in the ConfigStore before composing
 # Ray (hydra/launcher=ray_cluster) would otherwise re-create a driver started by `uv run` in
@@ -117,7 +118,8 @@ def cli(argv: Sequence[str] | None = None) -> int:
     os.environ[_FULL_ERROR] = "1"
     error: Exception | None = None
     try:
-        main()
+        with composing_once():  # the launching process composes the command's config once
+            main()
     except _TaskError as wrapped:
         error = wrapped.error
     except KeyboardInterrupt as exc:

@@ -59,9 +59,12 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
     if node is None or (isinstance(node, DictConfig) and "_target_" not in node):
         raise ConfigError(f"{path}: no _target_ to instantiate; got {OmegaConf.to_yaml(node)!r}")
     check_targets(node, path, tuple(deps))
-    params = inspect.signature(get_object(node["_target_"])).parameters
+    target = get_object(node["_target_"])
+    params = inspect.signature(target).parameters
     deps = {k: v for k, v in deps.items() if k in params}
     try:
+        if _is_flat(node):
+            return _call(target, node, deps)
         return instantiate(node, _convert_="all", **deps)
     except InstantiationException as exc:
         # the cause, keyed by where it happened, not Hydra's wrapper; a bug keeps its traceback
@@ -69,3 +72,35 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
         if message is None:
             raise
         raise ConfigError(message) from exc
+
+
+def _is_flat(node: DictConfig) -> bool:
+    """True if ``node``'s only Hydra key is its own ``_target_``: no nested target, no
+    ``_args_``, ``_partial_``, ``_convert_`` or ``_recursive_`` anywhere below."""
+
+    def flat(child: Any, top: bool) -> bool:
+        if isinstance(child, DictConfig):
+            keys = set(child.keys())
+            if keys & (_HYDRA_KEYS - ({"_target_"} if top else set())):
+                return False
+            return all(flat(v, False) for _, v in child.items_ex(resolve=False))
+        if isinstance(child, ListConfig):
+            return all(flat(v, False) for v in child)
+        return True
+
+    return flat(node, True)
+
+
+def _call(target: Any, node: DictConfig, deps: dict[str, Any]) -> Any:
+    """What Hydra's ``instantiate(node, _convert_="all", **deps)`` does for a flat node,
+    without its copy of the node and merge of ``deps`` into it (most of a warm sweep job's
+    build time): the options as plain Python values, the dependencies as they are, and an
+    error in the call wrapped as Hydra wraps it."""
+    options = OmegaConf.to_container(node, resolve=True, throw_on_missing=True)
+    assert isinstance(options, dict)
+    options.pop("_target_")
+    try:
+        return target(**options, **deps)
+    except Exception as exc:
+        raise InstantiationException(
+            f"Error in call to target '{node['_target_']}':\n{exc!r}") from exc

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from hydra import initialize_config_dir
+from hydra._internal.config_loader_impl import ConfigLoaderImpl
 from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import ConfigCompositionException
 from hydra.types import RunMode
@@ -23,7 +24,7 @@ from conftest import CONF
 from mpclab import record
 from mpclab.experiment import compose, run_experiment
 from mpclab.registry import register_all
-from mpclab.sweeps.compose import CachedComposeLoader
+from mpclab.sweeps.compose import CachedComposeLoader, composing_once
 from mpclab.warm import ComponentCache, structure_key
 
 JOBS = [
@@ -71,6 +72,36 @@ def test_cached_compose_fails_as_hydra_does(loader, bad: str) -> None:
     with pytest.raises(ConfigCompositionException) as got:
         cached.load_sweep_config(master, overrides)
     assert str(got.value) == str(want.value)
+
+
+def test_a_multirun_command_is_composed_once(loader, monkeypatch) -> None:
+    hydra = GlobalHydra.instance().hydra
+    sweep = ["+experiment=zumo_bug2", "seed=range(0,4)", "controller.horizon=8,10",
+             "hydra.launcher.n_jobs=2"]
+    want = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
+    calls: list[RunMode] = []
+    impl = ConfigLoaderImpl._load_configuration_impl
+
+    def counted(self, **kw):
+        calls.append(kw["run_mode"])
+        return impl(self, **kw)
+
+    monkeypatch.setattr(ConfigLoaderImpl, "_load_configuration_impl", counted)
+    with composing_once():
+        assert hydra.get_mode("config", sweep) is None  # as Hydra's: no config sets the mode
+        got = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
+        assert calls == [RunMode.MULTIRUN]  # the probe's config, reused
+        assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want)
+        # a single run composes in RUN mode: anew
+        hydra.get_mode("config", ["+experiment=car_cvxpy"])
+        hydra.compose_config("config", ["+experiment=car_cvxpy"], RunMode.RUN)
+        assert calls == [RunMode.MULTIRUN] * 2 + [RunMode.RUN]
+        # the sweep overrides are still checked on the reused config, as Hydra checks them
+        bad = ["+experiment=car_cvxpy", "hydra.run.dir=a,b"]
+        hydra.get_mode("config", bad)
+        with pytest.raises(ConfigCompositionException, match="hydra.run.dir"):
+            hydra.compose_config("config", [*bad, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
+    assert "get_mode" not in vars(hydra) and "load_configuration" not in vars(hydra.config_loader)
 
 
 def _steps(run_dir: Path) -> pd.DataFrame:

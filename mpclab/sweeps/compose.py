@@ -12,6 +12,10 @@ function, then fills in the ``hydra.overrides`` lists and ``hydra.job.override_d
 Hydra would; what fails to compose fails the same way (tests/test_sweep_compose.py checks
 both against Hydra's full compose).
 
+Hydra also composes a command's own config twice before anything runs: once to read its
+``hydra.mode`` (``Hydra.get_mode``), once more to run it. :func:`composing_once` keeps the
+first for the second (a sweep's launching process composes once; about 0.35 s for Zumo).
+
 The cache is per process (module level), so that a warm worker keeps it between jobs; it is
 not pickled with the loader (joblib and Ray ship the loader to their workers). It holds each
 composed config pickled: loading a fresh copy takes 3 ms where a deep copy takes 20 ms (a
@@ -20,15 +24,18 @@ config that does not pickle is deep-copied instead).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 import importlib
 import io
 import pickle
 from collections import OrderedDict
+from collections.abc import Iterator
 from typing import Any
 
 from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
+from hydra._internal.hydra import Hydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.types import RunMode
@@ -145,3 +152,67 @@ def _is_value_override(override: Override, repo: Any) -> bool:
 def cached(loader: Any) -> CachedComposeLoader:
     """``loader`` wrapped (once) in a :class:`CachedComposeLoader`."""
     return loader if isinstance(loader, CachedComposeLoader) else CachedComposeLoader(loader)
+
+
+@contextlib.contextmanager
+def composing_once() -> Iterator[None]:
+    """Within this block, Hydra's second composition of a multirun command's config (to run
+    it) reuses the first (to read its mode), with the same checks of the sweep overrides.
+
+    The second call differs from the first at most by a ``hydra.mode=...`` override that
+    Hydra appends when no config sets the mode; it is applied to the kept config as Hydra
+    applies it. Any other second call (a single run composes in RUN mode) composes anew.
+    """
+    get_mode = Hydra.get_mode
+
+    def probing_get_mode(hydra: Hydra, config_name: str | None, overrides: list[str]) -> Any:
+        loader = hydra.config_loader
+        inner = loader.load_configuration
+        kept: dict[str, Any] = {}
+
+        def probe(**kw: Any) -> DictConfig:
+            cfg = inner(**kw)
+            kept.update(kw=dict(kw, overrides=list(kw["overrides"])), cfg=cfg)
+            return cfg
+
+        def reuse(**kw: Any) -> DictConfig:
+            del loader.load_configuration  # one use: the loader's own method again
+            cfg = _reusable(kept, kw, loader)
+            return inner(**kw) if cfg is None else cfg
+
+        loader.load_configuration = probe
+        try:
+            return get_mode(hydra, config_name, overrides)
+        finally:
+            loader.load_configuration = reuse if kept else inner
+            if not kept:
+                del loader.load_configuration
+
+    Hydra.get_mode = probing_get_mode  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        Hydra.get_mode = get_mode  # type: ignore[method-assign]
+
+
+def _reusable(kept: dict[str, Any], kw: dict[str, Any], loader: Any) -> DictConfig | None:
+    """The kept config for the call ``kw`` if it is the probe's call in MULTIRUN mode plus at
+    most a ``hydra.mode`` override (applied here), else None."""
+    first, overrides = kept["kw"], list(kw["overrides"])
+    extra = overrides[len(first["overrides"]):]
+    same = (kw["run_mode"] == first["run_mode"] == RunMode.MULTIRUN
+            and kw["config_name"] == first["config_name"]
+            and kw.get("from_shell", True) == first.get("from_shell", True)
+            and overrides[:len(first["overrides"])] == first["overrides"]
+            and all(line.startswith("hydra.mode=") for line in extra) and len(extra) <= 1)
+    if not same:
+        return None
+    parsed = [_parse(line) for line in overrides]
+    if kw.get("validate_sweep_overrides", True):
+        loader.validate_sweep_overrides_legal(overrides=parsed, run_mode=kw["run_mode"],
+                                              from_shell=kw.get("from_shell", True))
+    cfg = kept["cfg"]
+    for override in parsed[len(first["overrides"]):]:
+        ConfigLoaderImpl._apply_overrides_to_config([override], cfg)
+        cfg.hydra.overrides.hydra.append(override.input_line)
+    return cfg
