@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -43,9 +44,24 @@ def find_compiler() -> str | None:
 
 
 def source_key(source: str, compiler: str, flags: Sequence[str], extra: Sequence[str] = ()) -> str:
-    """The cache key of a build: a hash of the source, the compiler's name, flags and extras."""
-    text = "\n".join([source, Path(compiler).name, *flags, *extra])
+    """The cache key of a build: a hash of the source, the compiler's name, flags and extras,
+    and of this CPU where a flag tunes the code for it (``-march=native``)."""
+    text = "\n".join([source, Path(compiler).name, *flags, *extra, host_key(flags)])
     return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def host_key(flags: Sequence[str]) -> str:
+    """What names this CPU (model and instruction-set flags) if ``flags`` build for it, else
+    ``""``: a library built with ``-march=native`` must not be loaded on another kind of CPU
+    that shares the cache folder (a cluster's shared home)."""
+    if not any("native" in flag for flag in flags):
+        return ""
+    try:
+        info = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.processor() or platform.machine()
+    keep = [line for line in info if line.split(":")[0].strip() in ("model name", "flags")]
+    return "\n".join(sorted(set(keep))) or platform.machine()
 
 
 def compile_shared(

@@ -1,0 +1,48 @@
+"""The compile cache: keyed by what shaped a library, including the CPU when built for it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mpclab.codegen import build
+
+SOURCE = "double twice(double x) { return 2.0 * x; }\n"
+
+
+def test_a_library_is_keyed_by_source_compiler_and_flags() -> None:
+    key = build.source_key(SOURCE, "/usr/bin/gcc", ["-O1"])
+    assert key == build.source_key(SOURCE, "/usr/local/bin/gcc", ["-O1"])  # the name counts
+    assert key != build.source_key(SOURCE, "/usr/bin/gcc", ["-O2"])
+    assert key != build.source_key(SOURCE + " ", "/usr/bin/gcc", ["-O1"])
+
+
+def test_native_code_is_keyed_by_this_cpu(monkeypatch) -> None:
+    assert build.host_key(["-O3"]) == ""
+    here = build.host_key(["-O3", "-march=native"])
+    assert here  # names this CPU
+    key = build.source_key(SOURCE, "gcc", ["-march=native"])
+    other = "model name\t: another CPU\nflags\t\t: fpu\n"
+    real_read = Path.read_text
+    monkeypatch.setattr(Path, "read_text", lambda self, *a, **k: other
+                        if str(self) == "/proc/cpuinfo" else real_read(self, *a, **k))
+    assert build.host_key(["-march=native"]) != here
+    assert build.source_key(SOURCE, "gcc", ["-march=native"]) != key
+
+
+def test_an_indexed_build_writes_its_source_once(tmp_path, monkeypatch) -> None:
+    if build.find_compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path))
+    written: list[int] = []
+
+    def source() -> str:
+        written.append(1)
+        return SOURCE
+
+    a = build.compile_indexed("twice v1", source, "t", ["-O0"])
+    b = build.compile_indexed("twice v1", source, "t", ["-O0"])
+    assert a == b and a.is_file() and len(written) == 1
+    # another key of the same source: written again, the same library found by its source
+    assert build.compile_indexed("twice v2", source, "t", ["-O0"]) == a and len(written) == 2
