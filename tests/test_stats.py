@@ -5,12 +5,16 @@ from __future__ import annotations
 import math
 
 import pytest
+from scipy.special import betaincinv
 from scipy.stats import binom
 
 from mpclab.stats import clopper_pearson
 
 
-@pytest.mark.parametrize("k, n", [(0, 10), (3, 10), (10, 10), (50, 50), (37, 50), (1, 1000)])
+CASES = [(0, 10), (3, 10), (10, 10), (50, 50), (37, 50), (1, 1000), (500, 1000), (4000, 5000)]
+
+
+@pytest.mark.parametrize("k, n", CASES)
 def test_bounds_meet_the_tail_probabilities(k, n):
     lo, hi = clopper_pearson(k, n)
     assert 0.0 <= lo <= k / n <= hi <= 1.0
@@ -19,6 +23,14 @@ def test_bounds_meet_the_tail_probabilities(k, n):
         assert binom.sf(k - 1, n, lo) == pytest.approx(0.025, rel=1e-6)
     if k < n:
         assert binom.cdf(k, n, hi) == pytest.approx(0.025, rel=1e-6)
+
+
+@pytest.mark.parametrize("k, n", CASES)
+def test_bounds_are_the_beta_quantiles(k, n):
+    # the same interval as scipy's inverse of the regularized incomplete beta function
+    lo, hi = clopper_pearson(k, n)
+    assert lo == (0.0 if k == 0 else pytest.approx(betaincinv(k, n - k + 1, 0.025), rel=1e-10))
+    assert hi == (1.0 if k == n else pytest.approx(betaincinv(k + 1, n - k, 0.975), rel=1e-10))
 
 
 def test_all_successes_has_the_closed_form_lower_bound():
