@@ -13,6 +13,7 @@ from mpclab.codegen import build as codegen_build
 from mpclab.controllers import casadi_compile
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
+from mpclab.controllers.casadi_solvers import dotted
 from mpclab.controllers.casadi_ocp import Params
 from mpclab.errors import ConfigError
 from mpclab.experiment import compose
@@ -242,3 +243,12 @@ def test_one_nlp_per_active_set_solves_the_same_problem(zumo_setup) -> None:
         assert b.u_pred == pytest.approx(a.u_pred, abs=1e-5)
     with pytest.raises(ConfigError, match="active_sets"):
         _mpc(zumo_setup, solver="fatrop", active_sets=[["J1", "J9"]])
+
+
+def test_nested_solver_options_reach_the_solver_as_casadis_dotted_names() -> None:
+    assert dotted({"fatrop": {"max_iter": 1, "tol": 1e-3}, "print_time": False}) == {
+        "fatrop.max_iter": 1, "fatrop.tol": 1e-3, "print_time": False}
+    x, goal = np.array([0.4, 0.8, -1.2]), np.array([0.4, 0.4, 0.0])
+    ctx = StepContext(goal=goal, target=np.tile(goal, (4, 1)))
+    capped = _small(solver="fatrop", solver_options={"fatrop": {"max_iter": 1}})
+    assert capped.step(0.0, x, ctx).status is SolveStatus.truncated  # the cap took effect

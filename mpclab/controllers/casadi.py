@@ -48,6 +48,7 @@ from mpclab.controllers.casadi_solvers import (
     CasadiSolver,
     QpSolver,
     bind_buffers,
+    dotted,
     nlpsol_options,
     read_status,
 )
@@ -140,7 +141,9 @@ class CasadiMPC(Controller):
     terminal_constraint
         ``{state label: value}`` imposed on the last predicted state.
     solver_options
-        Extra options for ``nlpsol`` (e.g. ``{"ipopt.linear_solver": "ma27"}``).
+        Extra options for ``nlpsol``, nested or dotted: ``{"fatrop": {"max_soc": 0}}`` is
+        ``{"fatrop.max_soc": 0}`` (nested, each can be set from the command line:
+        ``controller.solver_options.fatrop.max_soc=2``).
     active_sets
         Sets of term names a supervisor switches between (e.g. BUG2's): each gets an NLP
         of its terms only (cheaper per iteration than the NLP of all terms with the others
@@ -212,7 +215,7 @@ class CasadiMPC(Controller):
         self._names = list(objective.terms)
         self._M = max(self.max_detections, 1)
         terminal = terminal_rows(plant, dict(terminal_constraint or {}))
-        extra = dict(solver_options or {})
+        extra = dotted(solver_options or {})
         sets = {}
         for names in active_sets:
             unknown = set(names) - set(self._names)

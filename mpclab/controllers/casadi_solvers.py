@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import StrEnum
 from typing import Any
 
@@ -139,3 +140,16 @@ def bind_buffers(
         io[name] = a = np.zeros(fn.nnz_out(i))
         buffer.set_res(i, memoryview(a))
     return buffer, trigger, io
+
+
+def dotted(options: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``nlpsol`` options with nested dicts written as CasADi's dotted names
+    (``{"fatrop": {"max_soc": 0}}`` -> ``{"fatrop.max_soc": 0}``)."""
+    flat: dict[str, Any] = {}
+    for key, value in options.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(dotted(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
