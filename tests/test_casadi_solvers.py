@@ -13,8 +13,8 @@ from mpclab.codegen import build as codegen_build
 from mpclab.controllers import casadi_compile
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.casadi_solvers import dotted
 from mpclab.controllers.casadi_ocp import Params
+from mpclab.controllers.casadi_solvers import dotted
 from mpclab.errors import ConfigError
 from mpclab.experiment import compose
 from mpclab.instantiate import build
