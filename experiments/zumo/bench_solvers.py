@@ -35,14 +35,25 @@ from mpclab.sim import simulate
 QPS = ("qpoases", "osqp", "qrqp", "hpipm", "daqp", "piqp", "proxqp")
 
 
+def fatrop_options() -> dict[str, Any]:
+    """The fatrop options of ``controller=casadi_fatrop`` (conf/controller/casadi_fatrop.yaml)."""
+    cfg = compose(["+experiment=zumo_bug2", "controller=casadi_fatrop"])
+    return OmegaConf.to_container(cfg.controller.solver_options)
+
+
 def candidates() -> dict[str, dict[str, Any]]:
-    """Name -> controller options (on top of the experiment's controller config)."""
+    """Name -> controller options (on top of the experiment's controller config, which the
+    recording run sets to IPOPT: ``fatrop*`` carry casadi_fatrop's options, except
+    ``fatrop-jit-defaults``, fatrop as it comes)."""
+    tuned = fatrop_options()
     c: dict[str, dict[str, Any]] = {
         "ipopt-single": {"solver": "ipopt", "shooting": "single"},
         "ipopt-multiple": {"solver": "ipopt", "shooting": "multiple"},
         "ipopt-multiple-jit": {"solver": "ipopt", "shooting": "multiple", "jit": True},
         "fatrop": {"solver": "fatrop", "shooting": "multiple"},
         "fatrop-jit": {"solver": "fatrop", "shooting": "multiple", "jit": True},
+        "fatrop-jit-defaults": {"solver": "fatrop", "shooting": "multiple", "jit": True,
+                                "solver_options": {}},  # without casadi_fatrop's options
         "fatrop-jit-sets": {"solver": "fatrop", "shooting": "multiple", "jit": True,
                             "active_sets": "recorded"},
         "fatrop-jit-tol1e-4": {"solver": "fatrop", "shooting": "multiple", "jit": True,
@@ -52,6 +63,9 @@ def candidates() -> dict[str, dict[str, Any]]:
         "fatrop-jit-O2": {"solver": "fatrop", "shooting": "multiple", "jit": True,
                           "jit_flags": ["-O2"]},
     }
+    for name, opts in c.items():
+        if name.startswith("fatrop") and name != "fatrop-jit-defaults":
+            opts["solver_options"] = tuned
     for shooting in ("single", "multiple"):
         for qp in QPS:
             if qp == "hpipm" and shooting == "single":
@@ -133,13 +147,14 @@ def main() -> None:
     print(f"{a.experiment}: {len(steps)} recorded steps (IPOPT run: {status}); "
           f"load average {os.getloadavg()[0]:.2f}")
     ref = reference(cfg, run, steps)
-    names = a.only or list(candidates())
+    table = candidates()
+    names = a.only or list(table)
     ctrls = {}
     for name in names:
         t0 = time.perf_counter()
         try:
             with c_stdout_silenced():  # qpOASES' banner
-                ctrls[name] = build(cfg, run, candidates()[name], steps)
+                ctrls[name] = build(cfg, run, table[name], steps)
         except Exception as exc:  # a plugin that refuses this problem (hpipm's structure)
             print(f"  {name}: not built: {type(exc).__name__}: {str(exc).splitlines()[-1]}")
             continue
