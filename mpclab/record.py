@@ -22,6 +22,13 @@ SUMMARY = "summary.json"
 
 #: columns of steps.parquet whose values depend on wall-clock timing
 TIMING_COLUMNS = ("solve_time_s", "solve_cpu_s")
+#: the ``status`` of steps.parquet's last row: the final state, after the last controller call
+FINAL = "final"
+
+
+def controller_steps(steps: pd.DataFrame) -> pd.DataFrame:
+    """The rows of a step log that are controller calls (every row but the final state)."""
+    return steps[steps["status"] != FINAL]
 
 _VERSIONED = (
     "mpclab", "numpy", "scipy", "pandas", "casadi", "cvxpy", "clarabel", "osqp",

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from mpclab import record
 from mpclab.controllers.base import Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
@@ -200,7 +201,7 @@ class _StepLog:
         self.t.append(t)
         self.xs.append(x.copy())
         self.us.append(np.full(self.plant.nu, np.nan))
-        self.meta.append((np.nan, "final", False, "", np.nan, clearance, "", np.nan))
+        self.meta.append((np.nan, record.FINAL, False, "", np.nan, clearance, "", np.nan))
         for values in self.extra.values():
             values.append(None)
 
@@ -282,7 +283,7 @@ def solve_counts(status: pd.Series) -> dict[SolveStatus, int]:
 def _summary(
     steps: pd.DataFrame, status: str, error: str | None, t_end: float, scen: Scenario
 ) -> dict[str, Any]:
-    calls = steps[steps["status"] != "final"]
+    calls = record.controller_steps(steps)
     solve = calls["solve_time_s"].to_numpy()
     cpu = pd.to_numeric(calls[CPU_COLUMN], errors="coerce").to_numpy(dtype=float)
     total = float(solve.sum())

@@ -10,6 +10,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from conftest import compose_cfg
+from mpclab import record
 from mpclab.approx import dataset
 from mpclab.experiment import run_experiment
 
@@ -41,7 +42,7 @@ def test_recorder_writes_one_row_per_controller_call(tmp_path: Path) -> None:
     (d,) = fake_sweep(tmp_path, [0])
     rows = pd.read_parquet(d / dataset.ROWS)
     steps = pd.read_parquet(d / "steps.parquet")
-    calls = steps[steps["status"] != "final"]
+    calls = record.controller_steps(steps)
     assert len(rows) == len(calls) == 5
     np.testing.assert_array_equal(rows[["x", "y", "theta"]], calls[["px", "py", "theta"]])
     np.testing.assert_array_equal(rows[["a", "phi_dot"]], calls[["a", "phi_dot"]])

@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from conftest import compose_cfg
+from mpclab import record
 from mpclab.experiment import run_experiment
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
@@ -54,7 +55,7 @@ def test_every_mode_tracks_every_scenario_within_the_input_bounds(runs, scenario
     assert summary["rms_position"] < 1.0           # metres
     assert summary["rms_V"] < 0.2                  # m/s
     assert summary["input_bound_excess"] == 0.0
-    u = steps[steps["status"] != "final"]
+    u = record.controller_steps(steps)
     assert u["delta"].abs().max() <= np.radians(30) + 1e-12
     assert u["a"].abs().max() <= 2.0 + 1e-12
     assert summary["schedule_mode"] == mode and summary["n_operating_points"] == 8

@@ -16,9 +16,10 @@ import pandas as pd
 import pytest
 from test_bicycle import controller, ctx, random_target
 
+from mpclab import record
 from mpclab.codegen import build as codegen_build
 from mpclab.codegen.loader import DEFAULT_FLAGS
-from mpclab.codegen.scheduled import QPMethod
+from mpclab.codegen.scheduled import QpMethod
 from mpclab.controllers.base import SolveStatus
 from mpclab.controllers.scheduled_c import ScheduledSIL
 from mpclab.errors import ConfigError
@@ -68,7 +69,7 @@ def test_sil_whole_run_agrees_with_the_python_twin(run_cfg, control_horizon) -> 
     summaries = [json.loads((d / "summary.json").read_text()) for d in (py_dir, c_dir)]
     assert [s["codegen"] for s in summaries] == [False, True]
     assert summaries[1]["converged_fraction"] == 1.0 and summaries[1]["status"] == "arrived"
-    a, b = (pd.read_parquet(d / "steps.parquet").query("status != 'final'")
+    a, b = (record.controller_steps(pd.read_parquet(d / "steps.parquet"))
             for d in (py_dir, c_dir))
     assert len(a) == len(b) and (a["op"] == b["op"]).all() and a["op"].nunique() >= 4
     np.testing.assert_allclose(b[["delta", "a"]], a[["delta", "a"]], rtol=0, atol=TOL)
@@ -97,7 +98,7 @@ def test_the_compiled_controller_is_cached(tmp_path, monkeypatch) -> None:
 def test_a_capped_active_set_is_reported_truncated_not_converged() -> None:
     """With the iteration cap at 1, steps that need more passes say so."""
     c = controller(control_horizon=4, codegen=True)
-    capped = ScheduledSIL(c, QPMethod.active_set, (*DEFAULT_FLAGS, "-DMPC_QP_MAX_ITERATIONS=1"))
+    capped = ScheduledSIL(c, QpMethod.active_set, (*DEFAULT_FLAGS, "-DMPC_QP_MAX_ITERATIONS=1"))
     rng = np.random.default_rng(5)
     seen = set()
     for _ in range(60):

@@ -124,7 +124,7 @@ def test_car_cvxpy_reaches_the_goal_and_writes_the_run_record(run_cfg) -> None:
         assert col in steps.columns
     # the final row is the state at arrival, and it satisfies the stop rule
     last = steps.iloc[-1]
-    assert last["status"] == "final"
+    assert last["status"] == record.FINAL
     assert last["px"] ** 2 + last["py"] ** 2 + last["v"] ** 2 < 1
     assert s["n_steps"] == len(steps) - 1
     assert last["t"] == pytest.approx(s["arrival_time_s"])

@@ -63,7 +63,7 @@ def test_every_backend_falls_back_on_injected_failures(experiment, cls, run_cfg,
     s = result.summary
     assert s["status"] not in ("error", "solver_failed"), s.get("error")
     steps = record.read_steps(out)
-    calls = steps[steps["status"] != "final"]
+    calls = record.controller_steps(steps)
     fell_back = list(calls.index[calls["fallback"]])
     # the injected three, and any failure of the solver's own that they caused (a SQP warm
     # started from a fallback plan may fail too): every one counted
@@ -112,7 +112,7 @@ def test_ctrl_c_writes_the_partial_record(monkeypatch, tmp_path: Path) -> None:
     s = record.read_summary(tmp_path)
     assert s["status"] == "interrupted" and s["n_steps"] == 3
     steps = record.read_steps(tmp_path)
-    assert len(steps) == 4 and steps["status"].iloc[-1] == "final"
+    assert len(steps) == 4 and steps["status"].iloc[-1] == record.FINAL
 
 
 def test_ctrl_c_on_the_command_line(monkeypatch, capsys, tmp_path: Path) -> None:

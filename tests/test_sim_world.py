@@ -13,6 +13,7 @@ import pytest
 from test_rerun import read_rrd, temporal, verify
 
 from conftest import compose_cfg
+from mpclab import record
 from mpclab.errors import ConfigError
 from mpclab.experiment import build_run
 from mpclab.plants.kinematic_car import KinematicCar
@@ -49,7 +50,7 @@ def test_fixed_latency_integrates_across_the_switch(run_cfg):
         expect = plant.step(plant.step(X[k], applied_before, 0.03), U[k], 0.07)
         np.testing.assert_allclose(X[k + 1], expect, rtol=1e-12, atol=1e-12)
         applied_before = U[k]
-    calls = steps[steps["status"] != "final"]
+    calls = record.controller_steps(steps)
     np.testing.assert_allclose(calls["latency_s"], 0.03)
     np.testing.assert_allclose(calls["switch_t"], calls["t"] + 0.03)
     assert not calls["deadline_miss"].any()
@@ -60,7 +61,7 @@ def test_fixed_latency_integrates_across_the_switch(run_cfg):
 
 def test_missed_deadlines_hold_the_input_and_are_counted(run_cfg):
     result, _ = run_cfg([*CAR, "sim.latency=150", "scenario.t_max=1.0"])
-    calls = result.steps[result.steps["status"] != "final"]
+    calls = record.controller_steps(result.steps)
     assert calls["deadline_miss"].all() and calls["switch_t"].isna().all()
     applied = calls[[f"applied_{u}" for u in KinematicCar.inputs]].to_numpy()
     assert np.abs(applied).max() == 0.0  # the car never got an input: it was never on time
@@ -93,7 +94,7 @@ def test_noise_is_seeded_and_has_the_given_size(run_cfg):
     c, _ = run_cfg([*noisy, "seed=5"], name="c")
     assert _log(a).equals(_log(b))  # the same config and seed: the same log, noise included
     assert not np.allclose(a.steps["meas_px"].dropna(), c.steps["meas_px"].dropna())
-    calls = a.steps[a.steps["status"] != "final"]
+    calls = record.controller_steps(a.steps)
     err = calls[["meas_px", "meas_py", "meas_theta"]].to_numpy() - \
         calls[["px", "py", "theta"]].to_numpy()
     assert np.all(np.abs(err[:, :2]) < 0.01 * 5) and np.all(np.abs(err[:, 2]) < 0.02 * 5)

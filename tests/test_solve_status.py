@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mpclab import record
 from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC, read_status
 from mpclab.objectives.base import Objective
@@ -99,7 +100,7 @@ def test_summary_counts_every_status(run_cfg) -> None:
     assert sum(counts.values()) == s["n_steps"]
     assert counts[SolveStatus.truncated] > 0  # three IPOPT iterations do not converge
     assert s["converged_fraction"] == pytest.approx(counts[SolveStatus.converged] / s["n_steps"])
-    steps = res.steps[res.steps["status"] != "final"]
+    steps = record.controller_steps(res.steps)
     capped = steps["solver_status"] == "Maximum_Iterations_Exceeded"
     assert (steps.loc[capped, "status"] == "truncated").all()
     assert (steps.loc[capped, "iterations"] == 3).all()
@@ -117,7 +118,7 @@ def test_any_iteration_cap_is_truncated_never_an_exception(run_cfg, overrides, c
     s = res.summary
     assert s["status"] != "error", s["error"]
     assert s["solves_exception"] == 0
-    steps = res.steps[res.steps["status"] != "final"]
+    steps = record.controller_steps(res.steps)
     unconverged = steps[steps["status"] != "converged"]
     assert len(unconverged) > 0 and s["solves_truncated"] == len(unconverged)
     assert (unconverged["status"] == "truncated").all()

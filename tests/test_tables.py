@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from mpclab import tables
+from mpclab import record, tables
 from mpclab.sweeps import report
 
 
@@ -31,7 +31,7 @@ def _run(
         pd.DataFrame({
             "t": np.arange(n + 1) * 0.1,
             "solve_time_s": [*(np.asarray(solve_ms) / 1e3), np.nan],
-            "status": ["optimal"] * n + ["final"],
+            "status": ["optimal"] * n + [record.FINAL],
         }).to_parquet(job_dir / "steps.parquet")
 
 

@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
+from mpclab import record
 from mpclab.codegen.cwriter import c_array
 from mpclab.codegen.loader import ScheduledLibrary
 
@@ -230,7 +231,7 @@ def recorded_states(steps: pd.DataFrame, state_labels: Sequence[str],
                     target: Callable[[float], FloatArray], n: int) -> tuple[FloatArray, FloatArray]:
     """``n`` evenly spread controller calls of a run record's ``steps``: the states
     ``(n, nx)`` and the flattened previewed references ``target(t)`` ``(n, nref)``."""
-    calls = steps[steps["status"] != "final"]
+    calls = record.controller_steps(steps)
     rows = calls.iloc[np.linspace(0, len(calls) - 1, n).round().astype(int)]
     x = rows[list(state_labels)].to_numpy(dtype=float)
     ref = np.stack([np.asarray(target(float(t))).ravel() for t in rows["t"]])

@@ -36,7 +36,7 @@ BOX_QP_C = Path(__file__).with_name("box_qp.c")
 STATUS_CONVERGED, STATUS_MAX_ITER, STATUS_NOT_POSITIVE_DEFINITE = 0, 1, 2
 
 
-class QPMethod(StrEnum):
+class QpMethod(StrEnum):
     closed_form = "closed_form"
     active_set = "active_set"
 
@@ -78,7 +78,7 @@ class ScheduledTables:
     lb: FloatArray
     ub: FloatArray
     axes: tuple[ScheduleAxis, ...]
-    qp: QPMethod
+    qp: QpMethod
 
     @property
     def nz(self) -> int:
@@ -145,7 +145,7 @@ def scheduled_c(tables: ScheduledTables, name: str = "mpc_scheduled") -> str:
         c_array("mpc_lb", t.lb, real),
         c_array("mpc_ub", t.ub, real),
     ]
-    if t.qp is QPMethod.closed_form:
+    if t.qp is QpMethod.closed_form:
         out.append(c_array("mpc_h", t.H.reshape(nop, -1)[:, [0, 1, 3]], real))
     else:
         out.append(c_array("mpc_H", t.H.reshape(nop, -1), real))
@@ -179,7 +179,7 @@ def _nearest(t: ScheduledTables) -> str:
 def _step(t: ScheduledTables) -> str:
     wraps = (f"MPC_ROUND((x[{t.theta_index}] - mpc_theta_op[op]) / MPC_TWO_PI)"
              if t.theta_index >= 0 else "0")
-    if t.qp is QPMethod.closed_form:
+    if t.qp is QpMethod.closed_form:
         solve = "    mpc_box_qp_2(mpc_h[op], g, mpc_lb, mpc_ub, z);\n    *iterations = 0;\n" \
                 "    return MPC_QP_CONVERGED;"
     else:

@@ -45,8 +45,8 @@ from mpclab.controllers.casadi_codegen import GeneratedSolver
 from mpclab.controllers.casadi_compile import DEFAULT_FLAGS, compiled_nlp
 from mpclab.controllers.casadi_ocp import OCP, Shooting, build_ocp
 from mpclab.controllers.casadi_solvers import (
+    CasadiQpSolver,
     CasadiSolver,
-    QpSolver,
     bind_buffers,
     dotted,
     nlpsol_options,
@@ -58,7 +58,7 @@ from mpclab.plants.base import Plant
 from mpclab.quiet import c_stdout_silenced
 from mpclab.registry import component
 
-__all__ = ["CasadiMPC", "CasadiSolver", "QpSolver", "Shooting", "read_status"]
+__all__ = ["CasadiMPC", "CasadiSolver", "CasadiQpSolver", "Shooting", "read_status"]
 
 
 
@@ -83,7 +83,7 @@ class CasadiConf:
     horizon: int = 10
     dt: float = 0.1
     solver: CasadiSolver = CasadiSolver.ipopt
-    qp_solver: QpSolver = QpSolver.qpoases
+    qp_solver: CasadiQpSolver = CasadiQpSolver.qpoases
     sqp_iterations: int = 1
     shooting: Shooting = Shooting.multiple
     jit: bool = False
@@ -160,7 +160,7 @@ class CasadiMPC(Controller):
         horizon: int = 10,
         dt: float = 0.1,
         solver: CasadiSolver | str = CasadiSolver.ipopt,
-        qp_solver: QpSolver | str = QpSolver.qpoases,
+        qp_solver: CasadiQpSolver | str = CasadiQpSolver.qpoases,
         sqp_iterations: int = 1,
         shooting: Shooting | str = Shooting.multiple,
         jit: bool = False,
@@ -178,7 +178,7 @@ class CasadiMPC(Controller):
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.solver = parse_choice(CasadiSolver, solver, "controller.solver")
-        self.qp_solver = parse_choice(QpSolver, qp_solver, "controller.qp_solver")
+        self.qp_solver = parse_choice(CasadiQpSolver, qp_solver, "controller.qp_solver")
         self.shooting = parse_choice(Shooting, shooting, "controller.shooting")
         if int(max_iter) < 1:
             raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
@@ -194,7 +194,7 @@ class CasadiMPC(Controller):
             raise ConfigError("controller.solver=fatrop needs controller.shooting=multiple "
                               f"(got {self.shooting.value}): it exploits the stage structure")
         if (self.solver in (CasadiSolver.sqp, CasadiSolver.sqp_rti)
-                and self.qp_solver is QpSolver.hpipm and self.shooting is Shooting.single):
+                and self.qp_solver is CasadiQpSolver.hpipm and self.shooting is Shooting.single):
             raise ConfigError("controller.qp_solver=hpipm needs controller.shooting=multiple "
                               "(on the single-shooting QP it crashes the process)")
         self.codegen = bool(codegen)

@@ -24,7 +24,7 @@ class CasadiSolver(StrEnum):
     sqp_rti = "sqp_rti"
 
 
-class QpSolver(StrEnum):
+class CasadiQpSolver(StrEnum):
     qpoases = "qpoases"
     osqp = "osqp"
     qrqp = "qrqp"
@@ -81,7 +81,7 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
 
 
 def nlpsol_options(
-    solver: CasadiSolver, qp_solver: QpSolver, *, max_iter: int, tol: float,
+    solver: CasadiSolver, qp_solver: CasadiQpSolver, *, max_iter: int, tol: float,
     sqp_iterations: int, warm_start: bool, equality: list[bool],
 ) -> tuple[str, dict[str, Any]]:
     """The ``nlpsol`` plugin name and options of a solver choice (quiet, status-robust)."""
@@ -99,12 +99,12 @@ def nlpsol_options(
         name = "fatrop"
     else:
         qp_opts = {
-            QpSolver.qpoases: {"printLevel": "none"},
-            QpSolver.osqp: {"osqp": {"verbose": False}},
-            QpSolver.qrqp: {"print_iter": False, "print_header": False,
+            CasadiQpSolver.qpoases: {"printLevel": "none"},
+            CasadiQpSolver.osqp: {"osqp": {"verbose": False}},
+            CasadiQpSolver.qrqp: {"print_iter": False, "print_header": False,
                             "print_info": False},
-            QpSolver.piqp: {"piqp": {"verbose": False}},
-            QpSolver.proxqp: {"proxqp": {"verbose": False}},
+            CasadiQpSolver.piqp: {"piqp": {"verbose": False}},
+            CasadiQpSolver.proxqp: {"proxqp": {"verbose": False}},
         }.get(qp_solver, {}) | {"error_on_fail": False}
         rti = solver is CasadiSolver.sqp_rti
         opts |= {

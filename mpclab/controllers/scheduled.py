@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from mpclab import record
 from mpclab.controllers.base import (
     Controller,
     ControlStep,
@@ -64,7 +65,7 @@ class ScheduleMode(StrEnum):
     adaptive = "adaptive"
 
 
-class QPSolver(StrEnum):
+class ScheduledQpSolver(StrEnum):
     #: closed form for 2 free variables, else the active-set method
     auto = "auto"
     closed_form = "closed_form"
@@ -88,7 +89,7 @@ class ScheduledConf:
     )
     nominal_state: dict[str, float] = field(default_factory=dict)
     hysteresis: dict[str, float] = field(default_factory=dict)
-    solver: QPSolver = QPSolver.auto
+    solver: ScheduledQpSolver = ScheduledQpSolver.auto
     solver_options: dict[str, Any] = field(default_factory=dict)
     solve_via: SolveVia = SolveVia.auto
     codegen: bool = False
@@ -142,14 +143,14 @@ class ScheduledMPC(Controller):
         operating_points: Mapping[str, list[float]] | None = None,
         nominal_state: Mapping[str, float] | None = None,
         hysteresis: Mapping[str, float] | None = None,
-        solver: QPSolver | str = QPSolver.auto,
+        solver: ScheduledQpSolver | str = ScheduledQpSolver.auto,
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
         codegen: bool = False,
     ) -> None:
         super().__init__(plant, horizon, dt)
         self.mode = parse_choice(ScheduleMode, mode, "controller.mode")
-        self.solver = parse_choice(QPSolver, solver, "controller.solver")
+        self.solver = parse_choice(ScheduledQpSolver, solver, "controller.solver")
         T, nx, nu = self.horizon, plant.nx, plant.nu
         self._nx, self._nu = nx, nu
         if not 1 <= int(control_horizon) <= T:
@@ -158,7 +159,7 @@ class ScheduledMPC(Controller):
             )
         self.control_horizon = M = int(control_horizon)
         self.nz = nz = M * nu
-        if self.solver is QPSolver.closed_form and nz != 2:
+        if self.solver is ScheduledQpSolver.closed_form and nz != 2:
             raise ConfigError(
                 f"controller.solver=closed_form needs 2 free variables (2 inputs, control "
                 f"horizon 1); this problem has {nz}: use auto or active_set"
@@ -190,7 +191,7 @@ class ScheduledMPC(Controller):
         self._cvx = (
             CvxpyBoxQP(self.lb, self.ub, self.solver.value, dict(solver_options or {}),
                        solve_via)
-            if self.solver in (QPSolver.CLARABEL, QPSolver.OSQP) else None
+            if self.solver in (ScheduledQpSolver.CLARABEL, ScheduledQpSolver.OSQP) else None
         )
         self._active: int | None = None
         self.codegen = bool(codegen)
@@ -237,7 +238,8 @@ class ScheduledMPC(Controller):
         self._wq = self.qp.w
         self._hysteresis = any(self.grid.hysteresis)
         self._r_diag = np.diag(self.qp.R).tolist()  # E' R E is diagonal: blocked inputs
-        self._closed_form = self.nz == 2 and self.solver in (QPSolver.auto, QPSolver.closed_form)
+        self._closed_form = self.nz == 2 and self.solver in (
+            ScheduledQpSolver.auto, ScheduledQpSolver.closed_form)
 
     # ------------------------------------------------------------------ per step
     def reset(self, x0: FloatArray) -> None:
@@ -337,7 +339,7 @@ class ScheduledMPC(Controller):
             sol = self._cvx.solve(H, g)
             z = None if sol.values is None else np.asarray(sol.values[0], dtype=float)
             return z, sol.status, sol.raw
-        if self.nz == 2 and self.solver is not QPSolver.active_set:
+        if self.nz == 2 and self.solver is not ScheduledQpSolver.active_set:
             z = box_qp_2(*H.ravel()[[0, 1, 3]].tolist(), *g.tolist(), *self._bounds)
             return np.array(z), SolveStatus.converged, "closed_form"
         return box_qp_active_set(H, g, self.lb, self.ub), SolveStatus.converged, "active_set"
@@ -355,7 +357,7 @@ class ScheduledMPC(Controller):
 
     def metrics(self, steps: pd.DataFrame) -> dict[str, Any]:
         """Switches of the (nearest or active) operating point and the input jumps there."""
-        calls = steps[steps["status"] != "final"]
+        calls = record.controller_steps(steps)
         ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
         U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
         out: dict[str, Any] = {

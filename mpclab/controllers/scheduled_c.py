@@ -19,7 +19,7 @@ from mpclab.codegen.scheduled import (
     STATUS_CONVERGED,
     STATUS_MAX_ITER,
     STATUS_NOT_POSITIVE_DEFINITE,
-    QPMethod,
+    QpMethod,
     ScheduleAxis,
     ScheduledTables,
 )
@@ -38,7 +38,7 @@ C_STATUS = {
 }
 
 
-def schedule_tables(ctrl: ScheduledMPC, qp: QPMethod) -> ScheduledTables:
+def schedule_tables(ctrl: ScheduledMPC, qp: QpMethod) -> ScheduledTables:
     """The tables of ``ctrl``'s operating-point models, as the C emitter takes them."""
     models, th = ctrl.models, ctrl._theta
     rows = ctrl.qp.rows
@@ -78,9 +78,9 @@ class ScheduledSIL:
                 f"controller.codegen=true: controller.solver={ctrl.solver.value} runs through "
                 "CVXPY and has no generated C; valid: auto, closed_form, active_set"
             )
-        return cls(ctrl, QPMethod.closed_form if ctrl._closed_form else QPMethod.active_set)
+        return cls(ctrl, QpMethod.closed_form if ctrl._closed_form else QpMethod.active_set)
 
-    def __init__(self, ctrl: ScheduledMPC, qp: QPMethod, flags: tuple[str, ...] = DEFAULT_FLAGS):
+    def __init__(self, ctrl: ScheduledMPC, qp: QpMethod, flags: tuple[str, ...] = DEFAULT_FLAGS):
         try:
             self.library = ScheduledLibrary(schedule_tables(ctrl, qp), flags)
         except CompileError as exc:

@@ -85,14 +85,3 @@ class QuadraticTracking(Term):
         if self._ti:
             cost += ca.sumsqr(ca.diag(self._t) @ (X[self._ti, -1] - target[self._ti, -1]))
         return cost
-
-    def value(self, X: np.ndarray, U: np.ndarray, target: np.ndarray) -> float:
-        """The cost of a horizon given as arrays ``X (T+1, nx)``, ``U (T, nu)``."""
-        cost = 0.0
-        if self._qi:
-            cost += float(np.sum((self._q * (X[1:, self._qi] - target[1:, self._qi])) ** 2))
-        if self._ri:
-            cost += float(np.sum((self._r * U[:, self._ri]) ** 2))
-        if self._ti:
-            cost += float(np.sum((self._t * (X[-1, self._ti] - target[-1, self._ti])) ** 2))
-        return cost

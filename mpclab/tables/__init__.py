@@ -309,7 +309,7 @@ def _step_times_ms(run_dirs: Iterable[str]) -> np.ndarray:
         path = Path(run_dir) / record.STEPS
         if path.is_file():
             steps = pd.read_parquet(path, columns=["solve_time_s", "status"])
-            parts.append(steps.loc[steps["status"] != "final", "solve_time_s"].to_numpy() * 1e3)
+            parts.append(record.controller_steps(steps)["solve_time_s"].to_numpy() * 1e3)
     return np.concatenate(parts) if parts else np.array([])
 
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from mpclab import record
 from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
 from mpclab.registry import component
@@ -299,7 +300,7 @@ class TrackingScenario(Scenario):
             out[f"overshoot_{lab}"] = float(max(0.0, np.nanmax(past)))
             if change:
                 out[f"overshoot_{lab}_pct"] = 100.0 * out[f"overshoot_{lab}"] / abs(change)
-        U = steps.loc[steps["status"] != "final", list(plant.inputs)].to_numpy(dtype=float)
+        U = record.controller_steps(steps)[list(plant.inputs)].to_numpy(dtype=float)
         span = plant.u_ub - plant.u_lb
         if len(U) > 1:
             jump = np.abs(np.diff(U, axis=0)).max(axis=0)
