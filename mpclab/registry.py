@@ -29,7 +29,6 @@ COMPONENT_PACKAGES = (
     "mpclab.supervisors",
     "mpclab.world",
     "mpclab.recording",
-    "mpclab.approx",
 )
 
 #: group -> name -> component class (for the names written into run records)

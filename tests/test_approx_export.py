@@ -14,7 +14,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.neural_network import MLPRegressor
 
 from mpclab.approx.export_c import time_compiled, to_c
-from mpclab.approx.mlp import MLP
+from mpclab.policy.mlp import MLP
 
 RNG = np.random.default_rng(3)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mpclab.approx.features import FeatureSet, features, n_features
+from mpclab.policy.features import FeatureSet, features, n_features
 
 
 def readings() -> np.ndarray:
@@ -54,8 +54,8 @@ def test_visited_features_equal_what_the_loop_sensed(tmp_path) -> None:
     import pandas as pd
 
     from mpclab.approx.evaluate import visited_features
-    from mpclab.approx.mlp import MLP
     from mpclab.experiment import build_run, compose
+    from mpclab.policy.mlp import MLP
     from mpclab.sim import simulate
 
     cfg = compose(["+experiment=zumo_nn_data", "recorder=dataset", "seed=100003",

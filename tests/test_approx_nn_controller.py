@@ -8,11 +8,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mpclab.approx.features import FeatureSet, features, n_features
-from mpclab.approx.mlp import MLP
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.nn import NNController
 from mpclab.plants.zumo import Zumo
+from mpclab.policy.features import FeatureSet, features, n_features
+from mpclab.policy.mlp import MLP
 
 RNG = np.random.default_rng(7)
 

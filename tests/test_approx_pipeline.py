@@ -11,8 +11,8 @@ import pytest
 
 from conftest import ROOT
 from mpclab.approx import dataset
-from mpclab.approx.mlp import MLP
 from mpclab.approx.pipeline import load_conf, main
+from mpclab.policy.mlp import MLP
 
 
 @pytest.mark.slow

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mpclab.approx.features import FeatureSet, features
 from mpclab.approx.train import TrainConf, pairs, train
+from mpclab.policy.features import FeatureSet, features
 
 RNG = np.random.default_rng(11)
 

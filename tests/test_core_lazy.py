@@ -37,14 +37,18 @@ def test_unknown_module_is_an_import_error() -> None:
         lazy_import("no_such_module_xyz")
 
 
-def test_a_casadi_run_does_not_import_cvxpy_or_scipy_stats() -> None:
+def test_a_casadi_run_imports_neither_cvxpy_nor_the_training_app() -> None:
+    # nor scipy.stats or .special (the tables' interval is exact binomial tails), nor pyplot
+    # without figures, nor mpclab.approx and scikit-learn (composing walks only the
+    # component packages)
     code = (
         "import sys\n"
         "from mpclab.experiment import build_run, compose\n"
         "from mpclab.sim import simulate\n"
         "run = build_run(compose(['+experiment=zumo_bug2', 'recorder=none', '+ci=smoke']))\n"
         "simulate(run)\n"
-        "print(sorted(m for m in ('cvxpy.atoms', 'scipy.stats', 'clarabel') if m in sys.modules))\n"
+        "print(sorted(m for m in ('cvxpy.atoms', 'scipy.stats', 'scipy.special', 'clarabel',\n"
+        "    'sklearn', 'mpclab.approx', 'matplotlib.pyplot') if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                          check=True)

@@ -27,9 +27,9 @@ import pandas as pd
 
 from mpclab.approx.evaluate import visited_features
 from mpclab.approx.export_c import c_compiler, time_compiled
-from mpclab.approx.mlp import MLP
 from mpclab.controllers.base import ControlStep, SolveStatus
 from mpclab.experiment import build_run, compose
+from mpclab.policy.mlp import MLP
 from mpclab.sim import simulate
 
 HERE = Path(__file__).resolve().parent

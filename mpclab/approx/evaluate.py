@@ -17,9 +17,9 @@ from omegaconf import OmegaConf
 
 from mpclab import record
 from mpclab.approx.dataset import run_dirs
-from mpclab.approx.features import features
 from mpclab.experiment import build_run
 from mpclab.objectives.base import TermContext
+from mpclab.policy.features import features
 from mpclab.stats import clopper_pearson
 
 

@@ -1,4 +1,4 @@
-"""Export an :class:`~mpclab.approx.mlp.MLP` as one plain-C source file.
+"""Export an :class:`~mpclab.policy.mlp.MLP` as one plain-C source file.
 
 The file has the weights as ``static const double`` arrays and one function
 ``void NAME(const double in[N_IN], double out[N_OUT])``: fixed-size stack buffers, no dynamic
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mpclab.approx.mlp import MLP, Activation
 from mpclab.codegen.cwriter import c_array
+from mpclab.policy.mlp import MLP, Activation
 
 _C_ACT = {
     Activation.tanh: "tanh({x})",

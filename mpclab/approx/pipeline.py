@@ -36,9 +36,9 @@ from omegaconf import OmegaConf
 from mpclab import record
 from mpclab.approx import dataset, evaluate
 from mpclab.approx.export_c import c_compiler, time_compiled, to_c
-from mpclab.approx.mlp import MLP
 from mpclab.approx.train import TrainConf, train
 from mpclab.experiment import build_run, compose
+from mpclab.policy.mlp import MLP
 from mpclab.record import jsonable
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -4,7 +4,7 @@ Rows the expert solved to convergence (status ``converged``, no fallback) become
 ``(features, u)`` pairs; whole runs are held out (``held_out`` of them), so the held-out
 error is measured on trajectories the net never saw. Inputs are standardized, outputs scaled
 to the input bounds (``u / u_max`` for symmetric bounds, the study's ``u / 10``); both
-scalings are folded into the saved :class:`~mpclab.approx.mlp.MLP`.
+scalings are folded into the saved :class:`~mpclab.policy.mlp.MLP`.
 
     uv run python -m mpclab.approx.train DATA.parquet -o weights.npz [train.hidden=[64,64] ...]
 """
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.approx.features import FeatureSet, features
-from mpclab.approx.mlp import MLP, Activation
+from mpclab.policy.features import FeatureSet, features
+from mpclab.policy.mlp import MLP, Activation
 
 
 @dataclass

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mpclab.approx.features import FeatureSet, n_features
-from mpclab.approx.mlp import MLP, Activation, activate
 from mpclab.controllers.base import Controller, ControlStep, FloatArray, SolveStatus, StepContext
 from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
+from mpclab.policy.features import FeatureSet, n_features
+from mpclab.policy.mlp import MLP, Activation, activate
 from mpclab.registry import component
 from mpclab.world.scenario import Scenario
 
@@ -100,7 +100,7 @@ class NNController(Controller):
         self._no_plan = np.zeros((0, plant.nu))
 
     def _features(self, x: FloatArray, ctx: StepContext) -> FloatArray:
-        """The same vector as :func:`mpclab.approx.features.features`, built in place."""
+        """The same vector as :func:`mpclab.policy.features.features`, built in place."""
         r = ctx.ranges
         if r.shape != self._ranges_shape:
             raise ConfigError(f"NN was trained on {self._n_rays} rays, the scenario's sensor "
