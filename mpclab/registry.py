@@ -1,7 +1,10 @@
 """Structured-config schemas: every config group choice is checked at compose time.
 
-A component registers the dataclass describing its options under ``schema/<group>/<name>``;
-its YAML file in ``conf/<group>/`` lists that schema first in its defaults list::
+A component registers the dataclass describing its options under ``schema/<group>/<name>``,
+derived from its constructor (:func:`schema_from_init`: one field per option, typed and
+defaulted as the signature says, the injected dependencies left out), so that an option and
+its default are written once; its YAML file in ``conf/<group>/`` sets what differs from the
+defaults and lists the schema first in its defaults list::
 
     defaults:
       - /schema/controller@_here_: cvxpy
@@ -13,13 +16,21 @@ so a typo'd key or a wrong type fails while Hydra composes, naming the key.
 
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
+import enum
 import importlib
+import inspect
 import pkgutil
-from typing import Any
+import sys
+import types
+import typing
+from collections.abc import Collection, Mapping
+from pathlib import Path
+from typing import Any, Optional, Union
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import OmegaConf
+from omegaconf import MISSING, OmegaConf
 
 #: packages whose modules register schemas when imported
 COMPONENT_PACKAGES = (
@@ -56,15 +67,103 @@ def register_schema(
         COMPONENTS.setdefault(group, {})[name] = component
 
 
-def component(group: str, name: str, schema: type, open_keys: tuple[str, ...] = ()) -> Any:
-    """Class decorator: register ``schema`` for the decorated component class."""
+def component(
+    group: str, name: str, schema: type | None = None, *, injected: Collection[str] = (),
+    open_keys: tuple[str, ...] = (), hydra_keys: Mapping[str, Any] | None = None,
+) -> Any:
+    """Class decorator: register the decorated component's schema.
+
+    ``schema`` None (the rule): derived from the constructor by :func:`schema_from_init`,
+    ``injected`` naming the parameters the run passes in (plant, objective, ...) and
+    ``hydra_keys`` Hydra's own keys to add (``{"_recursive_": False}``). A hand-written
+    ``schema`` is for options with nested structure the signature does not spell out;
+    ``tests/test_schemas.py`` checks it against the constructor.
+    """
 
     def deco(cls: type) -> type:
         cls.registered_name = name  # type: ignore[attr-defined]
-        register_schema(group, name, schema, cls, open_keys)
+        conf = schema or schema_from_init(cls, injected, hydra_keys or {})
+        # free-form options (a solver's own, dict[str, Any]) take new keys without Hydra's +
+        free = tuple(f.name for f in dataclasses.fields(conf) if f.type == dict[str, Any])
+        register_schema(group, name, conf, cls, (*open_keys, *free) if schema is None
+                        else open_keys)
         return cls
 
     return deco
+
+
+def schema_from_init(
+    cls: type, injected: Collection[str] = (), hydra_keys: Mapping[str, Any] | None = None,
+) -> type:
+    """A dataclass ``<Class>Conf`` with ``_target_`` and one field per option of
+    ``cls.__init__``: the annotation made one OmegaConf checks (``Enum | str`` -> the enum,
+    ``Mapping[str, float] | None`` -> ``dict[str, float]``, ``Sequence[x]`` -> ``list[x]``),
+    the default as given (an empty or absent mapping or sequence -> an empty one; no default
+    -> ``???``, required)."""
+    hints = typing.get_type_hints(cls.__init__)
+    fields: list[tuple[str, Any, Any]] = [
+        ("_target_", str, dataclasses.field(default=target(cls)))]
+    for key, value in (hydra_keys or {}).items():
+        fields.append((key, type(value), dataclasses.field(default=value)))
+    for p in inspect.signature(cls.__init__).parameters.values():
+        if p.name == "self" or p.name in injected or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+            continue
+        typ = _conf_type(hints.get(p.name, Any))
+        fields.append((p.name, *_conf_field(typ, p.default)))
+    schema = dataclasses.make_dataclass(f"{cls.__name__}Conf", fields)
+    # importable by name, so that configs holding it pickle (sweep workers copy them)
+    schema.__module__ = cls.__module__
+    setattr(sys.modules[cls.__module__], schema.__name__, schema)
+    return schema
+
+
+_MAPPINGS = (collections.abc.Mapping, collections.abc.MutableMapping, dict)
+_SEQUENCES = (collections.abc.Sequence, collections.abc.MutableSequence, list, tuple)
+_PLAIN = (int, float, str, bool)
+
+
+def _conf_type(t: Any) -> Any:
+    """The type OmegaConf checks for a constructor's annotation ``t``."""
+    origin, args = typing.get_origin(t), typing.get_args(t)
+    if origin in (Union, types.UnionType):
+        kinds = [a for a in args if a is not type(None)]
+        enums = [a for a in kinds if isinstance(a, type) and issubclass(a, enum.Enum)]
+        base = enums[0] if enums else (_conf_type(kinds[0]) if len(kinds) == 1 else Any)
+        if type(None) in args and typing.get_origin(base) not in (dict, list):
+            return Optional[base]  # noqa: UP045  (a typing object OmegaConf reads)
+        return base
+    if origin in _MAPPINGS:
+        return dict[_conf_type(args[0]), _conf_type(args[1])] if args else dict[str, Any]
+    if origin in _SEQUENCES:
+        return list[_conf_type(args[0])] if args else list[Any]
+    if t is Path:
+        return str
+    if t in _PLAIN or (isinstance(t, type) and issubclass(t, enum.Enum)):
+        return t
+    return Any
+
+
+def _conf_field(typ: Any, default: Any) -> tuple[Any, Any]:
+    """``(type, dataclass field)`` for an option of type ``typ`` with ``default``."""
+    container = typing.get_origin(typ) in (dict, list)
+    if default is inspect.Parameter.empty:
+        return typ, dataclasses.field(default=MISSING)
+    if container:
+        empty = dict if typing.get_origin(typ) is dict else list
+        value = empty() if default is None else empty(default)
+        return typ, dataclasses.field(default_factory=lambda: _copy(value))
+    if isinstance(default, Path):
+        default = str(default)
+    return typ, dataclasses.field(default=default)
+
+
+def _copy(value: Any) -> Any:
+    """A fresh copy of a default container (each config gets its own)."""
+    if isinstance(value, Mapping):
+        return {k: _copy(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_copy(v) for v in value]
+    return value
 
 
 def target(cls: type) -> str:

@@ -24,7 +24,7 @@ zero-input stationary point of a robot at rest facing sideways to its goal.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
@@ -61,7 +61,6 @@ from mpclab.registry import component
 __all__ = ["CasadiMPC", "CasadiSolver", "CasadiQpSolver", "Shooting", "read_status"]
 
 
-
 @dataclass
 class _NLP:
     """One NLP of the controller: its terms, problem, solver and the solver's arrays."""
@@ -77,30 +76,7 @@ class _NLP:
     generated: GeneratedSolver | None = None
 
 
-@dataclass
-class CasadiConf:
-    _target_: str = "mpclab.controllers.casadi.CasadiMPC"
-    horizon: int = 10
-    dt: float = 0.1
-    solver: CasadiSolver = CasadiSolver.ipopt
-    qp_solver: CasadiQpSolver = CasadiQpSolver.qpoases
-    sqp_iterations: int = 1
-    shooting: Shooting = Shooting.multiple
-    jit: bool = False
-    jit_flags: list[str] = field(default_factory=lambda: list(DEFAULT_FLAGS))
-    collision_distance: float = 0.0
-    max_iter: int = 100
-    tol: float = 1e-6
-    warm_start: bool = True
-    max_detections: int = 20
-    initial_input: dict[str, float] = field(default_factory=dict)
-    terminal_constraint: dict[str, float] = field(default_factory=dict)
-    solver_options: dict[str, Any] = field(default_factory=dict)
-    active_sets: list[list[str]] = field(default_factory=list)
-    codegen: bool = False
-
-
-@component("controller", "casadi", CasadiConf)
+@component("controller", "casadi", injected=("plant", "objective"))
 class CasadiMPC(Controller):
     """Nonlinear MPC with CasADi (fatrop, IPOPT, SQP to convergence, or SQP-RTI).
 

@@ -10,7 +10,6 @@ free: the NLP has no room for detected points (``max_detections = 0``).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
@@ -44,19 +43,7 @@ class UnoPreset(StrEnum):
     ipopt = "ipopt"
 
 
-@dataclass
-class UnoConf:
-    _target_: str = "mpclab.controllers.casadi_uno.UnoMPC"
-    horizon: int = 10
-    dt: float = 0.1
-    preset: UnoPreset = UnoPreset.filtersqp
-    max_iter: int = 100
-    tol: float = 1e-6
-    initial_input: dict[str, float] = field(default_factory=dict)
-    terminal_constraint: dict[str, float] = field(default_factory=dict)
-
-
-@component("controller", "casadi_uno", UnoConf)
+@component("controller", "casadi_uno", injected=("plant", "objective"))
 class UnoMPC(Controller):
     """Nonlinear MPC on the CasADi backend's OCP, solved to convergence by Uno.
 

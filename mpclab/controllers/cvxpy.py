@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
@@ -67,26 +66,7 @@ class Linearization(StrEnum):
     rollout = "rollout"
 
 
-@dataclass
-class CvxpyConf:
-    _target_: str = "mpclab.controllers.cvxpy.CvxpyMPC"
-    horizon: int = 10
-    dt: float = 0.1
-    solver: CvxpySolver = CvxpySolver.CLARABEL
-    warm_start: bool = True
-    sl: SlMode = SlMode.converge
-    tol: float = 1e-6
-    max_iterations: int = 20
-    trust_radius: float = 0.5
-    hessian: Hessian = Hessian.exact
-    initial_input: dict[str, float] = field(default_factory=dict)
-    linearize_about: Linearization = Linearization.shifted_plan
-    terminal_constraint: dict[str, float] = field(default_factory=dict)
-    solver_options: dict[str, Any] = field(default_factory=dict)
-    solve_via: SolveVia = SolveVia.auto
-
-
-@component("controller", "cvxpy", CvxpyConf)
+@component("controller", "cvxpy", injected=("plant", "objective"))
 class CvxpyMPC(Controller):
     """Successive-linearization MPC solved as a convex QP with CVXPY.
 

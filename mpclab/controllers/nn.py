@@ -9,7 +9,6 @@ no scikit-learn call) and clips to the input bounds. ``x_pred`` is the current s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,14 +24,7 @@ from mpclab.world.scenario import Scenario
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@dataclass
-class NNConf:
-    _target_: str = "mpclab.controllers.nn.NNController"
-    weights: str = "???"      # .npz from mpclab.approx.train (relative to the repository root)
-    dt: float = 0.2
-
-
-@component("controller", "nn", NNConf)
+@component("controller", "nn", injected=("plant", "scenario"))
 class NNController(Controller):
     """The MPC law's imitation by a multilayer perceptron.
 

@@ -25,9 +25,10 @@ The heading is periodic: a model linearized at ``theta_i`` is used at ``theta_i 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from enum import StrEnum
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -75,27 +76,12 @@ class ScheduledQpSolver(StrEnum):
     OSQP = "OSQP"
 
 
-@dataclass
-class ScheduledConf:
-    _target_: str = "mpclab.controllers.scheduled.ScheduledMPC"
-    mode: ScheduleMode = ScheduleMode.switched
-    horizon: int = 32
-    control_horizon: int = 1
-    dt: float = 0.02
-    operating_points: dict[str, list[float]] = field(
-        default_factory=lambda: {
-            "theta": [0.0, math.pi / 2, math.pi, -math.pi / 2], "V": [1.0, 2.0]
-        }
-    )
-    nominal_state: dict[str, float] = field(default_factory=dict)
-    hysteresis: dict[str, float] = field(default_factory=dict)
-    solver: ScheduledQpSolver = ScheduledQpSolver.auto
-    solver_options: dict[str, Any] = field(default_factory=dict)
-    solve_via: SolveVia = SolveVia.auto
-    codegen: bool = False
+#: the default grid: heading every quarter turn, speed 1 and 2 m/s
+OPERATING_POINTS: Mapping[str, Sequence[float]] = MappingProxyType(
+    {"theta": (0.0, math.pi / 2, math.pi, -math.pi / 2), "V": (1.0, 2.0)})
 
 
-@component("controller", "scheduled", ScheduledConf)
+@component("controller", "scheduled", injected=("plant", "objective"))
 class ScheduledMPC(Controller):
     """Multiple linear MPC over a grid of operating points (switched, interpolated, adaptive).
 
@@ -140,7 +126,7 @@ class ScheduledMPC(Controller):
         horizon: int = 32,
         control_horizon: int = 1,
         dt: float = 0.02,
-        operating_points: Mapping[str, list[float]] | None = None,
+        operating_points: Mapping[str, Sequence[float]] = OPERATING_POINTS,
         nominal_state: Mapping[str, float] | None = None,
         hysteresis: Mapping[str, float] | None = None,
         solver: ScheduledQpSolver | str = ScheduledQpSolver.auto,
@@ -171,7 +157,7 @@ class ScheduledMPC(Controller):
         self._E = blocking_matrix(T, M, nu)
         self._condense = condenser(nx, nu, T, M)
         self.grid = OperatingGrid(
-            operating_points or ScheduledConf().operating_points, plant.state_index,
+            operating_points or OPERATING_POINTS, plant.state_index,
             plant.heading, hysteresis,
         )
         self._theta = plant.state_index(plant.heading) if plant.heading else None

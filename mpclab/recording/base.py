@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 from mpclab.registry import component
@@ -24,9 +23,4 @@ class Recorder:
         """Release files; always called."""
 
 
-@dataclass
-class NoRecorderConf:
-    _target_: str = "mpclab.recording.base.Recorder"
-
-
-component("recorder", "none", NoRecorderConf)(Recorder)
+component("recorder", "none")(Recorder)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +25,7 @@ ROWS = "dataset.parquet"
 HASH_IGNORES = ("seed", "hydra")
 
 
-@dataclass
-class DatasetRecorderConf:
-    _target_: str = "mpclab.recording.dataset.DatasetRecorder"
-    # the injected run config must arrive as data, not be instantiated
-    _recursive_: bool = False
-    filename: str = ROWS
-
-
-@component("recorder", "dataset", DatasetRecorderConf)
+@component("recorder", "dataset", injected=("out_dir", "cfg"), hydra_keys={"_recursive_": False})
 class DatasetRecorder(Recorder):
     """Writes one row per controller call: pose, goal pose, ranges, input, solver status.
 

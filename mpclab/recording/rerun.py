@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import uuid
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -49,17 +48,7 @@ _YELLOW, _ORANGE = (230, 200, 60, 90), (255, 127, 14)
 _THIN, _THICK = -1.0, -2.5
 
 
-@dataclass
-class RerunRecorderConf:
-    _target_: str = "mpclab.recording.rerun.RerunRecorder"
-    # the injected run config must arrive as data, not be instantiated
-    _recursive_: bool = False
-    filename: str = RRD
-    batch_steps: int = 100
-    arrow_length: float | None = None
-
-
-@component("recorder", "rerun", RerunRecorderConf)
+@component("recorder", "rerun", injected=("out_dir", "cfg"), hydra_keys={"_recursive_": False})
 class RerunRecorder(Recorder):
     """Write the run into ``out_dir / filename`` as a Rerun recording.
 

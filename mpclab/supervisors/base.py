@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import numpy.typing as npt
 
@@ -25,11 +23,6 @@ class Supervisor:
         return "", None
 
 
-@dataclass
-class NoSupervisorConf:
-    _target_: str = "mpclab.supervisors.base.NoSupervisor"
-
-
-@component("supervisor", "none", NoSupervisorConf)
+@component("supervisor", "none")
 class NoSupervisor(Supervisor):
     """Every objective term is always active."""
