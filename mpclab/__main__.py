@@ -22,6 +22,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from mpclab.errors import bad_input_message
+from mpclab.help import text as help_text
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
@@ -109,6 +110,10 @@ def cli(argv: Sequence[str] | None = None) -> int:
     back (Hydra re-raises with ``HYDRA_FULL_ERROR`` set, restored afterwards) and bad input
     becomes one message. With ``HYDRA_FULL_ERROR=1`` set by the user, bad input raises.
     """
+    args = list(sys.argv[1:] if argv is None else argv)
+    if "--help" in args or "-h" in args:  # mpclab's help; Hydra's is --hydra-help
+        sys.stdout.write(help_text())
+        return 0
     user_full_error = os.environ.get(_FULL_ERROR)
     saved_argv = sys.argv
     root = logging.getLogger()

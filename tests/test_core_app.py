@@ -48,7 +48,7 @@ def _error_text(excinfo: pytest.ExceptionInfo) -> str:
 def test_typo_in_override_names_the_key() -> None:
     with pytest.raises(ConfigCompositionException) as err:
         compose_cfg(["+experiment=car_cvxpy", "controller.horizn=5"])
-    assert "Key 'horizn' not in 'CvxpyConf'" in _error_text(err)
+    assert "Key 'horizn' not in 'CvxpyMPCConf'" in _error_text(err)
     assert "controller.horizn" in _error_text(err)
 
 
@@ -184,3 +184,17 @@ def test_module_entry_point_runs_from_the_repository_root(tmp_path: Path) -> Non
     assert proc.returncode == 0, proc.stderr
     assert (out / ".hydra" / "config.yaml").exists()
     assert json.loads((out / record.SUMMARY).read_text())["experiment"] == "car_cvxpy"
+
+
+def test_help_lists_what_there_is_to_run_and_the_default_experiment() -> None:
+    out = subprocess.run([sys.executable, "-m", "mpclab", "--help"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    text = out.stdout
+    for name in ("zumo_bug2", "car_cvxpy", "bicycle_scheduled",  # experiments
+                 "casadi_fatrop", "zumo_dead_end", "kinematic_car", "bug2", "realistic",
+                 "mpclab.objectives.rate.InputRate"):  # choices and a term type
+        assert name in text, name
+    assert "schema/" not in text  # Hydra's internal schema entries are not choices
+    assert "The default experiment's config (+experiment=zumo_bug2)" in text
+    assert "name: zumo_bug2" in text and "kinematic_car.KinematicCar" not in text
