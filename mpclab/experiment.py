@@ -13,6 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 from mpclab import record
 from mpclab.errors import ConfigError, number
 from mpclab.instantiate import build
+from mpclab.origin import where_set
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 from mpclab.warm import ComponentCache
@@ -42,6 +43,16 @@ def build_run(
     ``cache``, plant, objective and controller are reused from an earlier run of the same
     structure (:mod:`mpclab.warm`).
     """
+    try:
+        return _build_run(cfg, out_dir, cache)
+    except ConfigError as exc:  # say which file (or override) set the key it names
+        origin = where_set(cfg, str(exc), CONF_DIR)
+        if not origin:
+            raise
+        raise ConfigError(f"{exc}{origin}") from exc
+
+
+def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | None) -> Run:
     if cfg.seed < 0:
         raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)

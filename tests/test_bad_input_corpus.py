@@ -326,3 +326,19 @@ def test_subprocess_exit_code_and_no_traceback(tmp_path: Path) -> None:
         assert "Traceback" not in stdout + stderr
         assert wanted in stderr and stderr.startswith("mpclab: error:")
         assert not (out / record.SUMMARY).exists()
+
+
+@pytest.mark.parametrize("overrides, wanted", [
+    # an experiment that reuses another plant's objective: the key came from that file
+    (["+experiment=unicycle_goal", "objective=car_quadratic"],
+     ["objective term 'tracking'", "'phi_dot'", "(set in conf/objective/car_quadratic.yaml)"]),
+    (["+experiment=car_cvxpy", "plant=unicycle", "controller=casadi"],
+     ["scenario.start", "'phi'", "(set in conf/scenario/car_to_origin.yaml)"]),
+    # a group's file, then the command line
+    ([BUG2, "supervisor.modes.go_to_goal=[J1,J9]"],
+     ["(set in conf/supervisor/bug2.yaml, then the command line "
+      "(supervisor.modes.go_to_goal=[J1,J9]))"]),
+])
+def test_the_message_says_where_the_key_came_from(overrides, wanted, capsys, tmp_path) -> None:
+    code, text = run_cli(capsys, tmp_path / "run", overrides)
+    assert_one_clear_message(code, text, wanted, tmp_path / "run")

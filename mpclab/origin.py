@@ -1,0 +1,101 @@
+"""Where a config key came from: the files (and command-line overrides) that set it.
+
+A bad-input message names the key (``scenario.start: unknown state label 'phi'``); when an
+experiment reuses another experiment's objective or scenario, the key was merged in from a
+file the user never opened. :func:`where_set` finds, among the files of the run's defaults
+(the chosen file of the key's group, the files that one extends, the experiment file) and
+the command line, those that set the key, so the message can say which to edit.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import yaml
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+#: a dotted key at the start of a message (``scenario.start: ...``), an objective term
+#: named as the objective's messages name it, and the labels a message quotes
+_PATH = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)+)[: ]")
+_TERM = re.compile(r"^objective term '(\w+)'")
+_QUOTED = re.compile(r"'([A-Za-z_]\w*)'")
+
+
+def where_set(cfg: DictConfig, message: str, conf_dir: Path) -> str:
+    """``" (set in FILE, ...)"`` for the key ``message`` is about, or ``""`` when it cannot
+    be told (no Hydra run, no key path in the message, nothing found)."""
+    m, term = _PATH.match(message), _TERM.match(message)
+    if (m is None and term is None) or not HydraConfig.initialized():
+        return ""
+    path = m.group(1) if m else f"objective.terms.{term.group(1)}"
+    node = OmegaConf.select(cfg, path, default=None)
+    labels = set(_QUOTED.findall(message)) - ({term.group(1)} if term else set())
+    keys = _keys_named(node, path, labels) if isinstance(node, DictConfig) else []
+    hc = HydraConfig.get()
+    found: list[str] = []
+    for key in keys or [path]:
+        found += [f for f in _files_setting(key, dict(hc.runtime.choices), conf_dir)
+                  if f not in found]
+        found += [f"the command line ({line})" for line in hc.overrides.task
+                  if line.lstrip("+~").split("=")[0] in (key, path) and
+                  f"the command line ({line})" not in found]
+    return f" (set in {', then '.join(found)})" if found else ""
+
+
+def _keys_named(node: DictConfig, path: str, labels: set[str]) -> list[str]:
+    """Dotted keys below ``node`` (at ``path``) whose last part is one of ``labels``."""
+    out = []
+    for key, child in node.items_ex(resolve=False):
+        here = f"{path}.{key}"
+        if key in labels:
+            out.append(here)
+        if isinstance(child, DictConfig):
+            out += _keys_named(child, here, labels)
+    return out
+
+
+def _files_setting(key: str, choices: dict[str, Any], conf_dir: Path) -> list[str]:
+    """The defaults files of this run that set the dotted ``key``."""
+    group, _, inner = key.partition(".")
+    out = []
+    if choices.get(group):
+        for path in _group_chain(conf_dir / group, str(choices[group])):
+            if _sets(_load(path), inner):
+                out.append(str(path.relative_to(conf_dir.parent)))
+    experiment = choices.get("experiment")
+    if experiment:
+        path = conf_dir / "experiment" / f"{experiment}.yaml"
+        if _sets(_load(path), key):
+            out.append(str(path.relative_to(conf_dir.parent)))
+    return out
+
+
+def _group_chain(folder: Path, name: str) -> list[Path]:
+    """A group's file and the files of its group it extends (its defaults list), base first."""
+    path = folder / f"{name}.yaml"
+    doc = _load(path)
+    chain: list[Path] = []
+    for entry in doc.get("defaults", []) or []:
+        if isinstance(entry, str) and entry != "_self_" and (folder / f"{entry}.yaml").is_file():
+            chain += _group_chain(folder, entry)
+    return [*chain, path]
+
+
+def _load(path: Path) -> dict[str, Any]:
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _sets(doc: Any, dotted: str) -> bool:
+    """Whether the YAML mapping ``doc`` holds the nested key ``dotted``."""
+    for part in dotted.split(".") if dotted else []:
+        if not isinstance(doc, dict) or part not in doc:
+            return False
+        doc = doc[part]
+    return bool(dotted)
