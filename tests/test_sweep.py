@@ -77,7 +77,9 @@ def test_failed_jobs_are_rows_and_the_same_sweep_resumes(tmp_path: Path) -> None
     assert len(df) == 3 and "3/3 jobs done, 2 failed" in out
     assert df.loc["0", "status"] == "timeout" and df.loc["0", "n_steps"] == 10
     assert df.loc["1", "status"] == "error"
-    assert df.loc["1", "error"] == "controller.horizon must be >= 1, got -1"
+    assert df.loc["1", "error"] == ("controller.horizon must be >= 1, got -1 (set in "
+                                    "conf/experiment/car_cvxpy.yaml, then the command line "
+                                    "(controller.horizon=-1))")  # where the value came from
     assert df.loc["2", "status"] == "error" and "'ten'" in df.loc["2", "error"]
     assert df.loc["2", "controller"] == "cvxpy"  # named even though it never composed
     assert not (tmp_path / "arrival_vs_compute.png").exists()  # +ci=smoke: no figures at all
