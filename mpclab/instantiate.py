@@ -7,6 +7,7 @@ given keys with the target's signature, so a typo names the key, its path and th
 
 from __future__ import annotations
 
+import functools
 import inspect
 import pydoc
 from typing import Any
@@ -33,20 +34,30 @@ def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
 
 
 def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
-    target = node["_target_"]
+    target = str(node["_target_"])
     try:
-        obj = pydoc.locate(str(target))  # None when not found (Hydra's get_object logs it)
+        names, any_keyword = _options_of(target)
     except pydoc.ErrorDuringImport as exc:  # the module is there but fails to import
         raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc.value})") from exc
-    if obj is None:
+    except LookupError:
         raise ConfigError(f"{path}._target_: cannot import {target!r}: no such module, class "
-                          "or function")
-    sig = inspect.signature(obj)
-    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+                          "or function") from None
+    if any_keyword:
         return
-    valid = [n for n in sig.parameters if n not in deps]
+    valid = [n for n in names if n not in deps]
     given = {k: None for k in node if k not in _HYDRA_KEYS}
     check_keys(given, valid, where=f"{path} ({target})")
+
+
+@functools.lru_cache(maxsize=512)
+def _options_of(target: str) -> tuple[tuple[str, ...], bool]:
+    """The parameter names of ``target``'s signature and whether it takes ``**kwargs``
+    (found once per process: a sweep builds the same targets job after job)."""
+    obj = pydoc.locate(target)  # None when not found (Hydra's get_object logs it)
+    if obj is None:
+        raise LookupError(target)  # not cached: a failed lookup is tried again
+    params = inspect.signature(obj).parameters.values()
+    return tuple(p.name for p in params), any(p.kind is p.VAR_KEYWORD for p in params)
 
 
 def build(node: DictConfig, path: str, **deps: Any) -> Any:
@@ -60,7 +71,7 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
         raise ConfigError(f"{path}: no _target_ to instantiate; got {OmegaConf.to_yaml(node)!r}")
     check_targets(node, path, tuple(deps))
     target = get_object(node["_target_"])
-    params = inspect.signature(target).parameters
+    params, _ = _options_of(str(node["_target_"]))
     deps = {k: v for k, v in deps.items() if k in params}
     try:
         if _is_flat(node):

@@ -14,7 +14,10 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 STEPS = "steps.parquet"
 HORIZONS = "horizons.parquet"
@@ -84,6 +87,14 @@ def read_summary(run_dir: Path) -> dict[str, Any]:
 
 def read_steps(run_dir: Path) -> pd.DataFrame:
     return pd.read_parquet(Path(run_dir) / STEPS)
+
+
+def read_solve_times_s(run_dir: Path) -> np.ndarray:
+    """``solve_time_s`` of the controller calls in a run's step log (:func:`controller_steps`'
+    rows), read with pyarrow alone: a sweep reads it for every job's row."""
+    table = pq.read_table(Path(run_dir) / STEPS, columns=["solve_time_s", "status"])
+    calls = pc.fill_null(pc.not_equal(table["status"], FINAL), True)  # as pandas' ``!=``
+    return table.filter(calls)["solve_time_s"].to_numpy()
 
 
 def read_horizons(run_dir: Path) -> pd.DataFrame:

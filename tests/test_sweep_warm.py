@@ -8,6 +8,8 @@ on a reused controller is the run a freshly built one makes.
 
 from __future__ import annotations
 
+import copy
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -18,12 +20,13 @@ from hydra._internal.config_loader_impl import ConfigLoaderImpl
 from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import ConfigCompositionException
 from hydra.types import RunMode
-from omegaconf import OmegaConf
+from omegaconf import OmegaConf, open_dict, read_write
 
 from conftest import CONF
 from mpclab import record
 from mpclab.experiment import compose, run_experiment
 from mpclab.registry import register_all
+from mpclab.sweeps import compose as compose_module
 from mpclab.sweeps.compose import CachedComposeLoader, composing_once
 from mpclab.warm import ComponentCache, structure_key
 
@@ -54,6 +57,13 @@ def test_cached_compose_is_hydras_compose(loader) -> None:
         task = [k for k in want if k != "hydra"]
         assert (OmegaConf.to_container(OmegaConf.masked_copy(got, task), resolve=True)
                 == OmegaConf.to_container(OmegaConf.masked_copy(want, task), resolve=True))
+        # the task's copy: Hydra's run_job deletes ``hydra`` from a deep copy
+        want_task = copy.deepcopy(want)
+        with read_write(want_task), open_dict(want_task):
+            del want_task["hydra"]
+        got_task = cached.load_task_config(master, list(overrides))
+        assert OmegaConf.to_yaml(got_task) == OmegaConf.to_yaml(want_task), overrides
+        assert got_task._get_flag("struct") == want_task._get_flag("struct")
     # each job gets its own copy
     a = cached.load_sweep_config(master, JOBS[0])
     a.seed = 99
@@ -74,11 +84,36 @@ def test_cached_compose_fails_as_hydra_does(loader, bad: str) -> None:
     assert str(got.value) == str(want.value)
 
 
-def test_a_multirun_command_is_composed_once(loader, monkeypatch) -> None:
+COMMANDS = [
+    (["+experiment=zumo_bug2", "seed=range(0,4)", "controller.horizon=8,10",
+      "hydra.launcher.n_jobs=2", "hydra.mode=MULTIRUN"], RunMode.MULTIRUN),
+    (["+experiment=car_cvxpy", "controller=casadi,cvxpy", "seed=1"], RunMode.MULTIRUN),
+    (["hydra/launcher=joblib", "+experiment=car_cvxpy", "+tag=a", "figures.enabled=false"],
+     RunMode.MULTIRUN),
+    (["+experiment=car_cvxpy", "seed=2", "~figures"], RunMode.RUN),
+    (["+experiment=zumo_bug2", "scenario=zumo_random", "hydra.job.chdir=false"], RunMode.RUN),
+]
+
+
+@pytest.mark.parametrize(("overrides", "mode"), COMMANDS)
+def test_a_cached_command_config_is_hydras(loader, monkeypatch, overrides, mode) -> None:
+    monkeypatch.setattr(compose_module, "_BASES", OrderedDict())
+    want = loader.load_configuration("config", overrides, mode)
+    cached = CachedComposeLoader(loader)
+    for _ in range(2):  # composed, then from the cache
+        got = cached.load_configuration("config", overrides, mode)
+        assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want)
+
+
+def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch) -> None:
+    monkeypatch.setattr(compose_module, "_BASES", OrderedDict())
     hydra = GlobalHydra.instance().hydra
+    original = hydra.config_loader
     sweep = ["+experiment=zumo_bug2", "seed=range(0,4)", "controller.horizon=8,10",
              "hydra.launcher.n_jobs=2"]
     want = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
+    job = ["+experiment=zumo_bug2", "seed=3", "controller.horizon=10"]
+    want_job = original.load_sweep_config(want, job)
     calls: list[RunMode] = []
     impl = ConfigLoaderImpl._load_configuration_impl
 
@@ -90,18 +125,21 @@ def test_a_multirun_command_is_composed_once(loader, monkeypatch) -> None:
     with composing_once():
         assert hydra.get_mode("config", sweep) is None  # as Hydra's: no config sets the mode
         got = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
-        assert calls == [RunMode.MULTIRUN]  # the probe's config, reused
+        assert calls == [RunMode.RUN]  # the tree of the group overrides, once
         assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want)
-        # a single run composes in RUN mode: anew
+        assert (OmegaConf.to_yaml(hydra.config_loader.load_sweep_config(got, job))
+                == OmegaConf.to_yaml(want_job))
+        assert calls == [RunMode.RUN]  # a job of the sweep: the same tree
+        # a single run: its tree once, for both of Hydra's compositions
         hydra.get_mode("config", ["+experiment=car_cvxpy"])
         hydra.compose_config("config", ["+experiment=car_cvxpy"], RunMode.RUN)
-        assert calls == [RunMode.MULTIRUN] * 2 + [RunMode.RUN]
-        # the sweep overrides are still checked on the reused config, as Hydra checks them
+        assert calls == [RunMode.RUN] * 2
+        # the sweep overrides are still checked, as Hydra checks them
         bad = ["+experiment=car_cvxpy", "hydra.run.dir=a,b"]
         hydra.get_mode("config", bad)
         with pytest.raises(ConfigCompositionException, match="hydra.run.dir"):
             hydra.compose_config("config", [*bad, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
-    assert "get_mode" not in vars(hydra) and "load_configuration" not in vars(hydra.config_loader)
+    assert "get_mode" not in vars(hydra) and hydra.config_loader is original
 
 
 def _steps(run_dir: Path) -> pd.DataFrame:

@@ -195,3 +195,13 @@ def test_contended_runs_are_flagged() -> None:
     })
     assert tables.contended(df).tolist() == [False, True, True, True, pd.NA]
     assert tables.contended(pd.DataFrame({"x": [1]})).isna().all()  # no timing recorded
+
+
+def test_solve_times_are_the_controller_steps_of_the_log(tmp_path: Path) -> None:
+    steps = pd.DataFrame({"solve_time_s": [1e-3, np.nan, 3e-3, 4e-3, 0.0],
+                          "status": ["converged", "failed", None, "truncated", record.FINAL]})
+    steps.to_parquet(tmp_path / record.STEPS)
+    want = record.controller_steps(record.read_steps(tmp_path))["solve_time_s"].to_numpy()
+    got = record.read_solve_times_s(tmp_path)
+    assert len(got) == len(want) == 4
+    assert np.allclose(got, want, equal_nan=True)

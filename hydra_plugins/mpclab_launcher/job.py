@@ -7,16 +7,22 @@ that nobody else holds (fresh from :mod:`mpclab.sweeps.compose`): the job folder
 log file, ``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml``, ``env_set``, the
 callbacks' ``on_job_start``/``on_job_end``, the task function's return value or exception
 (the ``.hydra`` files written by libyaml's emitter: the same text, 20 ms sooner).
-The task function gets a second copy of the config (composed again from the cache: a quarter
-of a deep copy's time) without its ``hydra`` node, as with Hydra.
+
+Two copies are left out: the task function gets its own copy of the config without its
+``hydra`` node, composed from the cache (a tenth of a deep copy's time), and Hydra's global
+config (``HydraConfig``) is the job's config itself, where Hydra keeps a copy of its ``hydra``
+node whose parent is that config: ``HydraConfig.get()`` and every interpolation resolve
+alike (tests/test_pool_job.py runs a job both ways and compares).
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import yaml
+from hydra.conf import HydraConf
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import (
     JobReturn,
@@ -43,9 +49,21 @@ _FastDumper.add_representer(str, OmegaConfDumper.str_representer)
 
 def to_yaml(cfg: DictConfig | ListConfig) -> str:
     """``OmegaConf.to_yaml(cfg)``, emitted by :class:`_FastDumper`."""
-    container = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)
+    return _dump(OmegaConf.to_container(cfg, resolve=False, enum_to_str=True))
+
+
+def _dump(container: Any) -> str:
     return yaml.dump(container, default_flow_style=False, allow_unicode=True, sort_keys=False,
                      Dumper=_FastDumper)
+
+
+def set_hydra_config(config: DictConfig) -> None:
+    """``HydraConfig.instance().set_config(config)`` without its copy of ``config.hydra``:
+    the same checks and read-only flag; ``HydraConfig.get()`` is ``config.hydra`` itself."""
+    OmegaConf.set_readonly(config.hydra, True)
+    node_type = OmegaConf.get_type(config, "hydra")
+    assert node_type is not None and issubclass(node_type, HydraConf)
+    HydraConfig.instance().cfg = config  # type: ignore[assignment]
 
 
 def run_owned_job(
@@ -55,8 +73,8 @@ def run_owned_job(
     """Run one sweep job as ``run_job(..., job_dir_key="hydra.sweep.dir",
     job_subdir_key="hydra.sweep.subdir")`` would; the result holds no configs.
 
-    ``task_cfg`` is a second copy of ``config``, composed separately; its ``hydra`` node is
-    removed here and the rest goes to the task function.
+    ``task_cfg`` is a second copy of ``config``, composed separately, for the task function;
+    its ``hydra`` node (if it has one) is removed here.
     """
     callbacks = hydra_context.callbacks
     old_cwd = os.getcwd()
@@ -65,11 +83,12 @@ def run_owned_job(
                        str(OmegaConf.select(config, "hydra.sweep.subdir")))
     with read_write(config.hydra.runtime), open_dict(config.hydra.runtime):
         config.hydra.runtime.output_dir = os.path.abspath(out)
-    HydraConfig.instance().set_config(config)
+    set_hydra_config(config)
     chdir = bool(config.hydra.job.chdir)
     try:
-        with read_write(task_cfg), open_dict(task_cfg):
-            del task_cfg["hydra"]
+        if "hydra" in task_cfg:
+            with read_write(task_cfg), open_dict(task_cfg):
+                del task_cfg["hydra"]
         ret = JobReturn(overrides=OmegaConf.to_container(config.hydra.overrides.task))
         Path(out).mkdir(parents=True, exist_ok=True)
         if chdir:
@@ -81,9 +100,11 @@ def run_owned_job(
         if config.hydra.output_subdir is not None:
             hydra_output = Path(config.hydra.runtime.output_dir) / config.hydra.output_subdir
             hydra_output.mkdir(parents=True, exist_ok=True)
-            for node, name in ((task_cfg, "config.yaml"), (HydraConfig.instance().cfg,
-                               "hydra.yaml"), (config.hydra.overrides.task, "overrides.yaml")):
-                (hydra_output / name).write_text(to_yaml(node), encoding="utf-8")
+            hydra_node = OmegaConf.to_container(config.hydra, resolve=False, enum_to_str=True)
+            for text, name in ((to_yaml(task_cfg), "config.yaml"),
+                               (_dump({"hydra": hydra_node}), "hydra.yaml"),
+                               (to_yaml(config.hydra.overrides.task), "overrides.yaml")):
+                (hydra_output / name).write_text(text, encoding="utf-8")
         with env_override(config.hydra.job.env_set):
             callbacks.on_job_start(config=config, task_function=task_function)
             try:

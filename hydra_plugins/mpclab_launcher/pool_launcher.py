@@ -10,8 +10,9 @@ dominated a sweep of short jobs (issue 16). This launcher:
 * pins each worker's BLAS/OpenMP thread pools to ``threads_per_worker`` threads (one job per
   core, no oversubscription);
 * sends a worker only a job's number and overrides; the worker composes the job's config
-  (cheaply: :mod:`mpclab.sweeps.compose`) and runs it as Hydra's ``run_job`` does, without
-  its copies of the config (:mod:`.job`): job folders, ``.hydra/`` files, logging and
+  and the task's copy of it without ``hydra`` (cheaply: :mod:`mpclab.sweeps.compose`) and
+  runs it as Hydra's ``run_job`` does, without its copies of the config (:mod:`.job`): job
+  folders, ``.hydra/`` files, logging and
   callbacks as with Hydra's launchers; a config that fails to
   compose becomes the job's error row there (the sweeper does not compose jobs up front);
 * keeps what a worker built between jobs (``mpclab.warm``: the plant, objective and compiled
@@ -95,7 +96,7 @@ def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, A
     ctx, config = _WORKER["hydra_context"], _WORKER["config"]
     try:
         sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
-        task_cfg = ctx.config_loader.load_sweep_config(config, list(overrides))  # a 2nd copy
+        task_cfg = ctx.config_loader.load_task_config(config, list(overrides))  # no hydra
     except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
         log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
         ret = record_compose_error(ctx, config, idx, overrides, exc)

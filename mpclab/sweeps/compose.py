@@ -1,20 +1,22 @@
-"""Composing a sweep's jobs cheaply: the defaults tree once per set of group choices.
+"""Composing configs cheaply: the defaults tree once per set of group choices.
 
-Hydra composes every job from scratch (about 0.35 s for a Zumo job: reading and merging
-every YAML file and schema of its defaults tree), and a sweep over seeds composes the same
-tree again and again. A job's overrides are of two kinds (Hydra's own rule, in
+Hydra composes every config from scratch (about 0.2-0.35 s for a Zumo job: reading and
+merging every YAML file and schema of its defaults tree), and a sweep over seeds composes
+the same tree again and again. A command's overrides are of two kinds (Hydra's own rule, in
 ``hydra._internal.defaults_list``): *group* overrides (``scenario=zumo_random``,
 ``+experiment=zumo_bug2``) choose the defaults tree; *value* overrides (``seed=3``,
-``controller.horizon=20``) are applied to the composed config afterwards. So
-:class:`CachedComposeLoader` composes with Hydra once per distinct list of group overrides,
-keeps that config, and for each job applies the value overrides to a copy with Hydra's own
-function, then fills in the ``hydra.overrides`` lists and ``hydra.job.override_dirname`` as
-Hydra would; what fails to compose fails the same way (tests/test_sweep_compose.py checks
-both against Hydra's full compose).
+``controller.horizon=20``) are applied to the composed config afterwards, and *sweep*
+overrides (``seed=range(0,48)``) are not applied at all until they become a job's values.
+So :class:`CachedComposeLoader` composes with Hydra once per distinct list of group
+overrides, keeps that config, and for each call applies the value overrides to a copy with
+Hydra's own function, then fills in the ``hydra.overrides`` lists and
+``hydra.job.override_dirname`` as Hydra would; what fails to compose fails the same way
+(tests/test_sweep_warm.py checks both against Hydra's full compose).
 
-Hydra also composes a command's own config twice before anything runs: once to read its
-``hydra.mode`` (``Hydra.get_mode``), once more to run it. :func:`composing_once` keeps the
-first for the second (a sweep's launching process composes once; about 0.35 s for Zumo).
+Within :func:`composing_once` (``python -m mpclab``), Hydra's two compositions of a command's
+config (to read its ``hydra.mode``, then to run it) and a sweep's jobs share one tree: the
+launching process composes it once, and the pool launcher's workers, forked after that,
+inherit it.
 
 The cache is per process (module level), so that a warm worker keeps it between jobs; it is
 not pickled with the loader (joblib and Ray ship the loader to their workers). It holds each
@@ -39,10 +41,12 @@ from hydra._internal.hydra import Hydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
-#: composed base configs kept per process, most recent last
-_BASES: OrderedDict[tuple[Any, ...], bytes | DictConfig] = OrderedDict()
+_Frozen = bytes | DictConfig  # a config pickled, or itself where it does not pickle
+
+#: composed base configs kept per process, most recent last: (whole, without ``hydra``)
+_BASES: OrderedDict[tuple[Any, ...], tuple[_Frozen, _Frozen]] = OrderedDict()
 _MAX_BASES = 16
 
 
@@ -53,9 +57,11 @@ def _override_dirname(cfg: DictConfig, app: list[Override]) -> str:
 
 
 class CachedComposeLoader:
-    """A Hydra config loader whose ``load_sweep_config`` reuses composed defaults trees.
+    """A Hydra config loader that composes each defaults tree once per process.
 
-    Everything else is delegated to the wrapped loader.
+    ``load_configuration`` (and ``load_sweep_config``, which calls it) compose the tree of the
+    group overrides with Hydra, keep it, and apply the value overrides to a fresh copy;
+    everything else is delegated to the wrapped loader.
     """
 
     def __init__(self, loader: Any) -> None:
@@ -72,38 +78,100 @@ class CachedComposeLoader:
             raise AttributeError(name)
         return getattr(self.loader, name)
 
+    def load_configuration(
+        self, config_name: str | None, overrides: list[str], run_mode: RunMode,
+        from_shell: bool = True, validate_sweep_overrides: bool = True,
+    ) -> DictConfig:
+        """What ``ConfigLoaderImpl.load_configuration`` returns, from a cached tree."""
+        return _compose(self.loader, self.loader.load_configuration, config_name=config_name,
+                        overrides=list(overrides), run_mode=run_mode, from_shell=from_shell,
+                        validate_sweep_overrides=validate_sweep_overrides)
+
     def load_sweep_config(
         self, master_config: DictConfig, sweep_overrides: list[str],
     ) -> DictConfig:
         """What ``ConfigLoaderImpl.load_sweep_config`` returns, composed from a cached tree."""
         hydra_overrides = list(OmegaConf.to_container(master_config.hydra.overrides.hydra))
-        lines = hydra_overrides + list(sweep_overrides)
-        parsed = [_parse(line) for line in lines]
-        repo = self.loader.repository
-        group = [o for o in parsed if not _is_value_override(o, repo)]
-        values = [o for o in parsed if _is_value_override(o, repo)]
-        config_name = master_config.hydra.job.config_name
-        key = (config_name, tuple(o.input_line for o in group))
-        base = _BASES.get(key)
-        if base is None:
-            base = _frozen(self.loader.load_configuration(
-                config_name=config_name, overrides=[o.input_line for o in group],
-                run_mode=RunMode.RUN,
-            ))
-            _BASES[key] = base
-            while len(_BASES) > _MAX_BASES:
-                _BASES.popitem(last=False)
-        else:
-            _BASES.move_to_end(key)
-        cfg = pickle.loads(base) if isinstance(base, bytes) else copy.deepcopy(base)
-        ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
-        with open_dict(cfg.hydra):
-            cfg.hydra.overrides.hydra = [o.input_line for o in parsed if o.is_hydra_override()]
-            app = [o for o in parsed if not o.is_hydra_override()]
-            cfg.hydra.overrides.task = [o.input_line for o in app]
-            cfg.hydra.job.override_dirname = _override_dirname(cfg, app)
+        cfg = self.load_configuration(master_config.hydra.job.config_name,
+                                      hydra_overrides + list(sweep_overrides), RunMode.RUN)
         OmegaConf.copy_cache(from_config=master_config, to_config=cfg)
         return cfg
+
+    def load_task_config(
+        self, master_config: DictConfig, sweep_overrides: list[str],
+    ) -> DictConfig:
+        """``load_sweep_config(...)`` without its ``hydra`` node, as Hydra hands a job's
+        config to the task function (a copy with ``hydra`` deleted), from a kept tree that
+        has no ``hydra`` node (half the copying)."""
+        hydra_overrides = list(OmegaConf.to_container(master_config.hydra.overrides.hydra))
+        cfg = _compose(self.loader, self.loader.load_configuration,
+                       config_name=master_config.hydra.job.config_name,
+                       overrides=hydra_overrides + list(sweep_overrides), run_mode=RunMode.RUN,
+                       from_shell=True, validate_sweep_overrides=True, task=True)
+        OmegaConf.copy_cache(from_config=master_config, to_config=cfg)
+        return cfg
+
+
+def _compose(loader: Any, compose: Any, task: bool = False, **kw: Any) -> DictConfig:
+    """Hydra's ``load_configuration(**kw)``: the tree of its group overrides (composed by
+    ``compose`` in RUN mode once, then kept), its value overrides applied to a copy, and the
+    ``hydra.overrides`` lists and ``hydra.job.override_dirname`` filled in as Hydra fills them.
+
+    A group swept in a multirun, or a tree that does not compose in RUN mode (a mandatory
+    group left ``???``, which a multirun skips), goes to ``compose`` as it is: what Hydra
+    does, and the error Hydra raises, stay Hydra's. With ``task``, the config without its
+    ``hydra`` node (the value overrides of ``hydra.*`` are not applied: that node is gone).
+    """
+    parsed = [_parse(line) for line in kw["overrides"]]
+    if kw["validate_sweep_overrides"]:
+        loader.validate_sweep_overrides_legal(overrides=parsed, run_mode=kw["run_mode"],
+                                              from_shell=kw["from_shell"])
+    repo = loader.repository
+    values = [o for o in parsed if _is_value_override(o, repo)]
+    group = [o for o in parsed if not _is_value_override(o, repo)]
+    if any(o.is_sweep_override() for o in group):
+        return _without_hydra(compose(**kw)) if task else compose(**kw)
+    lines = tuple(o.input_line for o in _in_job_order(group))
+    key = (kw["config_name"], lines)
+    base = _BASES.get(key)
+    if base is None:
+        try:
+            cfg = compose(config_name=kw["config_name"], overrides=list(lines),
+                          run_mode=RunMode.RUN)
+        except Exception:  # noqa: BLE001  (Hydra's own call raises Hydra's own error)
+            if kw["run_mode"] == RunMode.RUN:
+                raise
+            return compose(**kw)
+        frozen = _frozen(cfg)
+        base = _BASES[key] = (frozen, _frozen(_without_hydra(_thawed(frozen))))
+        while len(_BASES) > _MAX_BASES:
+            _BASES.popitem(last=False)
+    else:
+        _BASES.move_to_end(key)
+    values = [o for o in values if not o.is_sweep_override()]
+    if task:
+        cfg = _thawed(base[1])
+        ConfigLoaderImpl._apply_overrides_to_config(
+            [o for o in values if not o.is_hydra_override()], cfg)
+        return cfg
+    cfg = _thawed(base[0])
+    ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
+    with open_dict(cfg.hydra):
+        cfg.hydra.overrides.hydra = [o.input_line for o in parsed if o.is_hydra_override()]
+        app = [o for o in parsed if not o.is_hydra_override()]
+        cfg.hydra.overrides.task = [o.input_line for o in app]
+        cfg.hydra.job.override_dirname = _override_dirname(cfg, app)
+    return cfg
+
+
+def _in_job_order(group: list[Override]) -> list[Override]:
+    """The group overrides as a sweep's job lists them (Hydra's overrides first), so that a
+    command and its jobs share one tree; in their own order where that could change the
+    tree (a Hydra group added or deleted: its merge order against the others')."""
+    hydra = [o for o in group if o.is_hydra_override()]
+    if any(o.is_add() or o.is_force_add() or o.is_delete() for o in hydra):
+        return group
+    return hydra + [o for o in group if not o.is_hydra_override()]
 
 
 class _ByName(pickle.Pickler):
@@ -128,7 +196,19 @@ def _lookup(module: str, qualname: str) -> Any:
     return obj
 
 
-def _frozen(cfg: DictConfig) -> bytes | DictConfig:
+def _thawed(frozen: _Frozen) -> DictConfig:
+    """A fresh copy of a kept config."""
+    return pickle.loads(frozen) if isinstance(frozen, bytes) else copy.deepcopy(frozen)
+
+
+def _without_hydra(cfg: DictConfig) -> DictConfig:
+    """``cfg`` with its ``hydra`` node deleted, as Hydra's ``run_job`` deletes it."""
+    with read_write(cfg), open_dict(cfg):
+        del cfg["hydra"]
+    return cfg
+
+
+def _frozen(cfg: DictConfig) -> _Frozen:
     """``cfg`` pickled (to load fresh copies from), or itself if it does not pickle."""
     buf = io.BytesIO()
     try:
@@ -156,63 +236,25 @@ def cached(loader: Any) -> CachedComposeLoader:
 
 @contextlib.contextmanager
 def composing_once() -> Iterator[None]:
-    """Within this block, Hydra's second composition of a multirun command's config (to run
-    it) reuses the first (to read its mode), with the same checks of the sweep overrides.
+    """Within this block, Hydra composes a command's configs with a :class:`CachedComposeLoader`.
 
-    The second call differs from the first at most by a ``hydra.mode=...`` override that
-    Hydra appends when no config sets the mode; it is applied to the kept config as Hydra
-    applies it. Any other second call (a single run composes in RUN mode) composes anew.
+    Hydra composes a command's config twice (once to read its ``hydra.mode``, once to run
+    it), and a sweep's worker composes its first job's tree once more: the three share one
+    tree, composed once (the workers inherit it when they are forked).
     """
     get_mode = Hydra.get_mode
+    wrapped: list[tuple[Hydra, Any]] = []
 
-    def probing_get_mode(hydra: Hydra, config_name: str | None, overrides: list[str]) -> Any:
-        loader = hydra.config_loader
-        inner = loader.load_configuration
-        kept: dict[str, Any] = {}
+    def caching_get_mode(hydra: Hydra, config_name: str | None, overrides: list[str]) -> Any:
+        if not isinstance(hydra.config_loader, CachedComposeLoader):
+            wrapped.append((hydra, hydra.config_loader))
+            hydra.config_loader = cached(hydra.config_loader)
+        return get_mode(hydra, config_name, overrides)
 
-        def probe(**kw: Any) -> DictConfig:
-            cfg = inner(**kw)
-            kept.update(kw=dict(kw, overrides=list(kw["overrides"])), cfg=cfg)
-            return cfg
-
-        def reuse(**kw: Any) -> DictConfig:
-            del loader.load_configuration  # one use: the loader's own method again
-            cfg = _reusable(kept, kw, loader)
-            return inner(**kw) if cfg is None else cfg
-
-        loader.load_configuration = probe
-        try:
-            return get_mode(hydra, config_name, overrides)
-        finally:
-            loader.load_configuration = reuse if kept else inner
-            if not kept:
-                del loader.load_configuration
-
-    Hydra.get_mode = probing_get_mode  # type: ignore[method-assign]
+    Hydra.get_mode = caching_get_mode  # type: ignore[method-assign]
     try:
         yield
     finally:
         Hydra.get_mode = get_mode  # type: ignore[method-assign]
-
-
-def _reusable(kept: dict[str, Any], kw: dict[str, Any], loader: Any) -> DictConfig | None:
-    """The kept config for the call ``kw`` if it is the probe's call in MULTIRUN mode plus at
-    most a ``hydra.mode`` override (applied here), else None."""
-    first, overrides = kept["kw"], list(kw["overrides"])
-    extra = overrides[len(first["overrides"]):]
-    same = (kw["run_mode"] == first["run_mode"] == RunMode.MULTIRUN
-            and kw["config_name"] == first["config_name"]
-            and kw.get("from_shell", True) == first.get("from_shell", True)
-            and overrides[:len(first["overrides"])] == first["overrides"]
-            and all(line.startswith("hydra.mode=") for line in extra) and len(extra) <= 1)
-    if not same:
-        return None
-    parsed = [_parse(line) for line in overrides]
-    if kw.get("validate_sweep_overrides", True):
-        loader.validate_sweep_overrides_legal(overrides=parsed, run_mode=kw["run_mode"],
-                                              from_shell=kw.get("from_shell", True))
-    cfg = kept["cfg"]
-    for override in parsed[len(first["overrides"]):]:
-        ConfigLoaderImpl._apply_overrides_to_config([override], cfg)
-        cfg.hydra.overrides.hydra.append(override.input_line)
-    return cfg
+        for hydra, loader in wrapped:
+            hydra.config_loader = loader

@@ -96,7 +96,7 @@ def parse_overrides(overrides: Sequence[str]) -> dict[str, Any]:
         if key.startswith("hydra.") or key.startswith("hydra/"):
             continue
         try:
-            out[key] = yaml.safe_load(value) if value else None
+            out[key] = yaml.load(value, Loader=_SafeLoader) if value else None
         except yaml.YAMLError:
             out[key] = value
         if isinstance(out[key], dict | list):
@@ -306,10 +306,8 @@ def _step_times_ms(run_dirs: Iterable[str]) -> np.ndarray:
     """Every controller call's solve time (ms) of the runs, pooled (final rows left out)."""
     parts = []
     for run_dir in run_dirs:
-        path = Path(run_dir) / record.STEPS
-        if path.is_file():
-            steps = pd.read_parquet(path, columns=["solve_time_s", "status"])
-            parts.append(record.controller_steps(steps)["solve_time_s"].to_numpy() * 1e3)
+        if (Path(run_dir) / record.STEPS).is_file():
+            parts.append(record.read_solve_times_s(Path(run_dir)) * 1e3)
     return np.concatenate(parts) if parts else np.array([])
 
 
