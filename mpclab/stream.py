@@ -29,6 +29,10 @@ def read(path: Path) -> list[dict[str, Any]]:
         text = Path(path).read_text()
     except FileNotFoundError:
         return []
+    return _records(text)
+
+
+def _records(text: str) -> list[dict[str, Any]]:
     out = []
     for line in text.splitlines():
         try:
@@ -36,3 +40,31 @@ def read(path: Path) -> list[dict[str, Any]]:
         except ValueError:
             continue
     return out
+
+
+class Tail:
+    """The records appended to ``path`` since the last :meth:`new`, read from where that call
+    stopped: following a file that grows by a line per job costs each job its new lines, not
+    the whole file (which made a sweep's progress quadratic in its jobs)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.offset = 0
+
+    def new(self) -> tuple[list[dict[str, Any]], bool]:
+        """The whole lines appended since the last call (a line still being written waits for
+        the next), and whether they are read from the file's start: on the first call, and
+        when the file was started anew (shorter than what was read before)."""
+        from_start = self.offset == 0
+        try:
+            with open(self.path, "rb") as f:
+                if os.fstat(f.fileno()).st_size < self.offset:
+                    self.offset, from_start = 0, True
+                f.seek(self.offset)
+                data = f.read()
+        except FileNotFoundError:
+            self.offset = 0
+            return [], True
+        end = data.rfind(b"\n") + 1
+        self.offset += end
+        return _records(data[:end].decode()), from_start

@@ -203,6 +203,9 @@ class PoolLauncher(Launcher):
             initializer, initargs = _init_pickled, (cloudpickle.dumps(init),)
         pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=initializer,
                                    initargs=initargs)
+        # what the workers inherit stays out of their garbage collector's way: a collection
+        # in a forked worker would otherwise write to (and so copy) every inherited page
+        gc.freeze()
         try:
             pending: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
                                           for idx, ov in jobs}
@@ -213,6 +216,8 @@ class PoolLauncher(Launcher):
         except BaseException:
             pool.shutdown(wait=True, cancel_futures=True)
             raise
+        finally:
+            gc.unfreeze()
         # every job is done: the workers exit while this process writes the sweep's tables
         pool.shutdown(wait=False)
         return results

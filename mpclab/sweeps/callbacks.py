@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +109,8 @@ class SweepCallback(Callback):
     def __init__(self, figure: bool = True, x: str = "step_ms") -> None:
         self.figure = figure
         self.x = tables.XAxis(x)
+        #: per sweep folder, in this process: the progress file followed, and its tally
+        self._progress: dict[Path, tuple[stream.Tail, Counter[str]]] = {}
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         state = Path(config.hydra.sweep.dir) / STATE_DIR
@@ -116,6 +119,7 @@ class SweepCallback(Callback):
         (state / SWEEP_FILE).write_text(json.dumps({"total": total, "start": time.time()}))
         for name in STREAMS:
             (state / name).write_text("")
+        self._progress.pop(state, None)
         log.info("sweep of %s jobs into %s", total or "?", config.hydra.sweep.dir)
 
     def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
@@ -132,10 +136,18 @@ class SweepCallback(Callback):
             tables.stream_row(config.hydra.sweep.dir, Path(run_dir))
         stream.append(state / PROGRESS_FILE,
                       {"job": config.hydra.job.num, "status": status, "resumed": resumed})
-        rows = stream.read(state / PROGRESS_FILE)
+        tail, tally = self._progress.setdefault(
+            state, (stream.Tail(state / PROGRESS_FILE), Counter()))
+        records, from_start = tail.new()
+        if from_start:
+            tally.clear()
+        for rec in records:
+            tally["done"] += 1
+            tally["failed"] += int(rec["status"] == "error")
+            tally["resumed"] += int(bool(rec["resumed"]))
         log.info("sweep: %s", progress_line(
-            len(rows), meta["total"], sum(r["status"] == "error" for r in rows),
-            sum(r["resumed"] for r in rows), time.time() - meta["start"],
+            tally["done"], meta["total"], tally["failed"], tally["resumed"],
+            time.time() - meta["start"],
         ))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:

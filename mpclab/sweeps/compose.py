@@ -127,8 +127,9 @@ def _compose(loader: Any, compose: Any, task: bool = False, **kw: Any) -> DictCo
         loader.validate_sweep_overrides_legal(overrides=parsed, run_mode=kw["run_mode"],
                                               from_shell=kw["from_shell"])
     repo = loader.repository
-    values = [o for o in parsed if _is_value_override(o, repo)]
-    group = [o for o in parsed if not _is_value_override(o, repo)]
+    is_value = [_is_value_override(o, repo) for o in parsed]
+    values = [o for o, v in zip(parsed, is_value, strict=True) if v]
+    group = [o for o, v in zip(parsed, is_value, strict=True) if not v]
     if any(o.is_sweep_override() for o in group):
         return _without_hydra(compose(**kw)) if task else compose(**kw)
     lines = tuple(o.input_line for o in _in_job_order(group))
@@ -226,7 +227,14 @@ def _parse(line: str) -> Override:
 
 def _is_value_override(override: Override, repo: Any) -> bool:
     """Hydra's rule (``defaults_list.Overrides``): a dict value, or a key that is no group."""
-    return isinstance(override.value(), dict) or not repo.group_exists(override.key_or_group)
+    return isinstance(override.value(), dict) or not _is_group(repo, override.key_or_group)
+
+
+@functools.lru_cache(maxsize=4096)
+def _is_group(repo: Any, key: str) -> bool:
+    """``repo.group_exists(key)``, asked once per process (each asks every config source's
+    folders; a sweep asks it of the same keys for every job)."""
+    return bool(repo.group_exists(key))
 
 
 def cached(loader: Any) -> CachedComposeLoader:
