@@ -24,8 +24,8 @@ _HYDRA_KEYS = {"_target_", "_convert_", "_recursive_", "_partial_", "_args_"}
 def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
     """Raise :class:`ConfigError` if any ``_target_`` below ``node`` gets unknown options."""
     if isinstance(node, DictConfig):
-        if "_target_" in node:
-            _check_one(node, path, deps)
+        if "_target_" in node.keys():  # not ``in node``: a struct node raises inside for a
+            _check_one(node, path, deps)  # missing key, and most nodes have no target
         for key, child in node.items_ex(resolve=False):
             check_targets(child, f"{path}.{key}" if path else str(key))
     elif isinstance(node, ListConfig):

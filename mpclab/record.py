@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
@@ -65,8 +66,10 @@ def write(
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        steps.to_parquet(out_dir / STEPS, index=False)
-        horizons.to_parquet(out_dir / HORIZONS, index=False)
+        for frame, name in ((steps, STEPS), (horizons, HORIZONS)):
+            # what ``frame.to_parquet(path, index=False)`` writes, without pandas' wrapper
+            # around pyarrow (0.3 ms a file; a sweep writes two per job)
+            pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), out_dir / name)
         # summary last: its presence marks a complete record
         write_summary(out_dir, summary)
     except OSError as exc:  # read-only, full, not a folder: name the folder, not a C++ frame

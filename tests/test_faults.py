@@ -9,7 +9,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
+import pyarrow.parquet as pq
 import pytest
 
 from conftest import compose_cfg
@@ -129,7 +129,7 @@ def test_a_full_output_folder_is_one_message_naming_it(monkeypatch, capsys, tmp_
     def full(self, *args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(pd.DataFrame, "to_parquet", full)
+    monkeypatch.setattr(pq, "write_table", full)  # how mpclab.record writes the step log
     out = tmp_path / "run"
     code = cli(["+experiment=car_cvxpy", "+ci=smoke", "scenario.t_max=0.2",
                 f"hydra.run.dir={out}"])

@@ -33,7 +33,7 @@ import multiprocessing
 import os
 import time
 from collections.abc import Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -207,12 +207,12 @@ class PoolLauncher(Launcher):
         # in a forked worker would otherwise write to (and so copy) every inherited page
         gc.freeze()
         try:
-            pending: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
+            futures: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
                                           for idx, ov in jobs}
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    results[pending.pop(fut)] = fut.result()
+            # as_completed waits on every future once; wait() in a loop would register with
+            # every pending future again after each job (quadratic in the jobs)
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
         except BaseException:
             pool.shutdown(wait=True, cancel_futures=True)
             raise
