@@ -122,7 +122,9 @@ def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch) -> 
         return impl(self, **kw)
 
     monkeypatch.setattr(ConfigLoaderImpl, "_load_configuration_impl", counted)
+    compose_module._BASES[("stale",)] = (b"", b"")  # a tree kept by an earlier command
     with composing_once():
+        assert ("stale",) not in compose_module._BASES  # each command composes anew
         assert hydra.get_mode("config", sweep) is None  # as Hydra's: no config sets the mode
         got = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
         assert calls == [RunMode.RUN]  # the tree of the group overrides, once
@@ -140,6 +142,7 @@ def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch) -> 
         with pytest.raises(ConfigCompositionException, match="hydra.run.dir"):
             hydra.compose_config("config", [*bad, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
     assert "get_mode" not in vars(hydra) and hydra.config_loader is original
+    assert not compose_module._BASES  # nothing kept for the next command
 
 
 def _steps(run_dir: Path) -> pd.DataFrame:

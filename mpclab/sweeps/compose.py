@@ -248,7 +248,9 @@ def composing_once() -> Iterator[None]:
 
     Hydra composes a command's config twice (once to read its ``hydra.mode``, once to run
     it), and a sweep's worker composes its first job's tree once more: the three share one
-    tree, composed once (the workers inherit it when they are forked).
+    tree, composed once (the workers inherit it when they are forked). The kept trees are
+    dropped when the block starts and ends: a process that runs several commands (a notebook,
+    a test) composes each anew, from the files as they are then.
     """
     get_mode = Hydra.get_mode
     wrapped: list[tuple[Hydra, Any]] = []
@@ -260,9 +262,11 @@ def composing_once() -> Iterator[None]:
         return get_mode(hydra, config_name, overrides)
 
     Hydra.get_mode = caching_get_mode  # type: ignore[method-assign]
+    _BASES.clear()
     try:
         yield
     finally:
+        _BASES.clear()
         Hydra.get_mode = get_mode  # type: ignore[method-assign]
         for hydra, loader in wrapped:
             hydra.config_loader = loader
