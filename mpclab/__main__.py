@@ -23,6 +23,7 @@ from omegaconf import DictConfig
 
 from mpclab.errors import bad_input_message
 from mpclab.help import text as help_text
+from mpclab.origin import RunOrigin
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
@@ -84,7 +85,7 @@ def _task(cfg: DictConfig) -> dict:
         s = run_job(cfg, out_dir, list(hc.overrides.task), dict(hc.runtime.choices))
     else:
         try:
-            s = run_experiment(cfg, out_dir).summary
+            s = run_experiment(cfg, out_dir, origin=RunOrigin.from_hydra()).summary
         except RunInterrupted as exc:  # its partial record is written: say where
             exc.out_dir = out_dir
             raise

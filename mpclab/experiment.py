@@ -13,7 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 from mpclab import record
 from mpclab.errors import ConfigError, number
 from mpclab.instantiate import build
-from mpclab.origin import where_set
+from mpclab.origin import RunOrigin, where_set
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 from mpclab.warm import ComponentCache
@@ -35,21 +35,23 @@ def compose(overrides: Sequence[str] = ()) -> DictConfig:
 
 def build_run(
     cfg: DictConfig, out_dir: Path | None = None, cache: ComponentCache | None = None,
+    origin: RunOrigin | None = None,
 ) -> Run:
     """Instantiate plant, objective, scenario, supervisor, sim world, controller, recorder.
 
     The controller comes after the others but the recorder: it is the expensive one to
     build (a CasADi NLP compiles), so bad input anywhere else is refused before it. With a
     ``cache``, plant, objective and controller are reused from an earlier run of the same
-    structure (:mod:`mpclab.warm`).
+    structure (:mod:`mpclab.warm`). With the run's ``origin`` (Hydra's choices and command
+    line), a bad-input message also says which file or override set the key it names.
     """
     try:
         return _build_run(cfg, out_dir, cache)
     except ConfigError as exc:  # say which file (or override) set the key it names
-        origin = where_set(cfg, str(exc), CONF_DIR)
-        if not origin:
+        where = where_set(cfg, str(exc), CONF_DIR, origin)
+        if not where:
             raise
-        raise ConfigError(f"{exc}{origin}") from exc
+        raise ConfigError(f"{exc}{where}") from exc
 
 
 def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | None) -> Run:
@@ -77,6 +79,7 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
 
 def run_experiment(
     cfg: DictConfig, out_dir: Path, cache: ComponentCache | None = None,
+    origin: RunOrigin | None = None,
 ) -> RunResult:
     """Run the experiment ``cfg`` and write its run record (and figures) into ``out_dir``.
 
@@ -86,7 +89,7 @@ def run_experiment(
     """
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
-    run = build_run(cfg, out_dir, cache)
+    run = build_run(cfg, out_dir, cache, origin)
     progress = RunProgress(cfg.name, live=sys.stderr.isatty()) if cfg.progress else None
     interrupted = None
     t1 = time.perf_counter()

@@ -10,6 +10,7 @@ the command line, those that set the key, so the message can say which to edit.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,22 +25,37 @@ _TERM = re.compile(r"^objective term '(\w+)'")
 _QUOTED = re.compile(r"'([A-Za-z_]\w*)'")
 
 
-def where_set(cfg: DictConfig, message: str, conf_dir: Path) -> str:
+@dataclass(frozen=True)
+class RunOrigin:
+    """What Hydra chose for one run: its group choices and its command-line overrides."""
+
+    choices: dict[str, Any]
+    overrides: tuple[str, ...]
+
+    @classmethod
+    def from_hydra(cls) -> RunOrigin | None:
+        """The Hydra run this process is in (None outside one). Read by the task function
+        itself: afterwards Hydra's global config still holds the run that ended."""
+        if not HydraConfig.initialized():
+            return None
+        hc = HydraConfig.get()
+        return cls(dict(hc.runtime.choices), tuple(hc.overrides.task))
+
+
+def where_set(cfg: DictConfig, message: str, conf_dir: Path, run: RunOrigin | None) -> str:
     """``" (set in FILE, ...)"`` for the key ``message`` is about, or ``""`` when it cannot
-    be told (no Hydra run, no key path in the message, nothing found)."""
+    be told (no run origin, no key path in the message, nothing found)."""
     m, term = _PATH.match(message), _TERM.match(message)
-    if (m is None and term is None) or not HydraConfig.initialized():
+    if (m is None and term is None) or run is None:
         return ""
     path = m.group(1) if m else f"objective.terms.{term.group(1)}"
     node = OmegaConf.select(cfg, path, default=None)
     labels = set(_QUOTED.findall(message)) - ({term.group(1)} if term else set())
     keys = _keys_named(node, path, labels) if isinstance(node, DictConfig) else []
-    hc = HydraConfig.get()
     found: list[str] = []
     for key in keys or [path]:
-        found += [f for f in _files_setting(key, dict(hc.runtime.choices), conf_dir)
-                  if f not in found]
-        found += [f"the command line ({line})" for line in hc.overrides.task
+        found += [f for f in _files_setting(key, run.choices, conf_dir) if f not in found]
+        found += [f"the command line ({line})" for line in run.overrides
                   if line.lstrip("+~").split("=")[0] in (key, path) and
                   f"the command line ({line})" not in found]
     return f" (set in {', then '.join(found)})" if found else ""

@@ -21,11 +21,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hydra import compose as hydra_compose
+from hydra import initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
 
 from conftest import ROOT
 from mpclab import record
 from mpclab.__main__ import EXIT_BAD_INPUT, cli, report
-from mpclab.experiment import build_run, compose
+from mpclab.errors import ConfigError
+from mpclab.experiment import CONF_DIR, build_run, compose
 
 CAR, CASADI_CAR, ZUMO, BUG2 = (f"+experiment={n}" for n in
                                ("car_cvxpy", "car_casadi", "zumo_potential", "zumo_bug2"))
@@ -342,3 +346,20 @@ def test_subprocess_exit_code_and_no_traceback(tmp_path: Path) -> None:
 def test_the_message_says_where_the_key_came_from(overrides, wanted, capsys, tmp_path) -> None:
     code, text = run_cli(capsys, tmp_path / "run", overrides)
     assert_one_clear_message(code, text, wanted, tmp_path / "run")
+
+
+def test_a_library_run_names_no_other_runs_command_line() -> None:
+    """Hydra's global config may hold another run (a task function calling mpclab, a test):
+    a library call's message must not cite that run's command line (a run's origin comes
+    with the run, not from the global)."""
+    bad = "supervisor.modes.go_to_goal=[J1,J9]"
+    saved = HydraConfig.instance().cfg
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            other = hydra_compose("config", [BUG2, bad], return_hydra_config=True)
+        HydraConfig.instance().set_config(other)
+        with pytest.raises(ConfigError) as err:
+            build_run(compose([BUG2, "+ci=smoke", "supervisor.modes.go_to_goal=[J1,J8]"]))
+        assert "J8" in str(err.value) and "command line" not in str(err.value)
+    finally:
+        HydraConfig.instance().cfg = saved

@@ -24,7 +24,8 @@ def test_a_raising_job_writes_an_error_row(tmp_path: Path) -> None:
     s = run(tmp_path, "controller.horizon=-1")
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     assert s["status"] == on_disk["status"] == "error"
-    assert on_disk["error"] == "controller.horizon must be >= 1, got -1"
+    assert on_disk["error"] == ("controller.horizon must be >= 1, got -1 "
+                                "(set in the command line (controller.horizon=-1))")
     assert on_disk["controller"] == "cvxpy" and on_disk["experiment"] == "car_cvxpy"
     assert on_disk["overrides"] == [*BASE, "controller.horizon=-1"]
     assert not (tmp_path / "steps.parquet").exists()

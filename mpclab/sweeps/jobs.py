@@ -20,6 +20,7 @@ from omegaconf import DictConfig
 
 from mpclab import record
 from mpclab.errors import bad_input_message
+from mpclab.origin import RunOrigin
 from mpclab.tables import override_key
 from mpclab.warm import WORKER_CACHE
 
@@ -131,7 +132,8 @@ def run_job(
     workers = int(env) if env else workers
     load_start = os.getloadavg()[0]
     try:
-        summary = run_experiment(cfg, out_dir, cache=WORKER_CACHE).summary
+        summary = run_experiment(cfg, out_dir, cache=WORKER_CACHE,
+                                 origin=RunOrigin(dict(choices), tuple(overrides))).summary
     except Exception as exc:  # the sweep goes on; the row says what happened
         log.error("job failed: %s\n%s", exc, traceback.format_exc())
         summary = error_summary(exc, overrides, cfg, choices)
