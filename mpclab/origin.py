@@ -34,8 +34,8 @@ class RunOrigin:
 
     @classmethod
     def from_hydra(cls) -> RunOrigin | None:
-        """The Hydra run this process is in (None outside one). Read by the task function
-        itself: afterwards Hydra's global config still holds the run that ended."""
+        """The Hydra run this process is in (None outside one), read by the task function
+        itself: elsewhere Hydra's global config may hold another run."""
         if not HydraConfig.initialized():
             return None
         hc = HydraConfig.get()

@@ -73,8 +73,8 @@ def run_owned_job(
     """Run one sweep job as ``run_job(..., job_dir_key="hydra.sweep.dir",
     job_subdir_key="hydra.sweep.subdir")`` would; the result holds no configs.
 
-    ``task_cfg`` is a second copy of ``config``, composed separately, for the task function;
-    its ``hydra`` node (if it has one) is removed here.
+    ``task_cfg`` is the task function's own copy of ``config`` without its ``hydra`` node
+    (:meth:`mpclab.sweeps.compose.CachedComposeLoader.load_task_config`).
     """
     callbacks = hydra_context.callbacks
     old_cwd = os.getcwd()
@@ -86,9 +86,6 @@ def run_owned_job(
     set_hydra_config(config)
     chdir = bool(config.hydra.job.chdir)
     try:
-        if "hydra" in task_cfg:
-            with read_write(task_cfg), open_dict(task_cfg):
-                del task_cfg["hydra"]
         ret = JobReturn(overrides=OmegaConf.to_container(config.hydra.overrides.task))
         Path(out).mkdir(parents=True, exist_ok=True)
         if chdir:

@@ -91,11 +91,7 @@ class CachedComposeLoader:
         self, master_config: DictConfig, sweep_overrides: list[str],
     ) -> DictConfig:
         """What ``ConfigLoaderImpl.load_sweep_config`` returns, composed from a cached tree."""
-        hydra_overrides = list(OmegaConf.to_container(master_config.hydra.overrides.hydra))
-        cfg = self.load_configuration(master_config.hydra.job.config_name,
-                                      hydra_overrides + list(sweep_overrides), RunMode.RUN)
-        OmegaConf.copy_cache(from_config=master_config, to_config=cfg)
-        return cfg
+        return self._job_config(master_config, sweep_overrides, task=False)
 
     def load_task_config(
         self, master_config: DictConfig, sweep_overrides: list[str],
@@ -103,11 +99,16 @@ class CachedComposeLoader:
         """``load_sweep_config(...)`` without its ``hydra`` node, as Hydra hands a job's
         config to the task function (a copy with ``hydra`` deleted), from a kept tree that
         has no ``hydra`` node (half the copying)."""
+        return self._job_config(master_config, sweep_overrides, task=True)
+
+    def _job_config(
+        self, master_config: DictConfig, sweep_overrides: list[str], task: bool,
+    ) -> DictConfig:
         hydra_overrides = list(OmegaConf.to_container(master_config.hydra.overrides.hydra))
-        cfg = _compose(self.loader, self.loader.load_configuration,
+        cfg = _compose(self.loader, self.loader.load_configuration, task=task,
                        config_name=master_config.hydra.job.config_name,
                        overrides=hydra_overrides + list(sweep_overrides), run_mode=RunMode.RUN,
-                       from_shell=True, validate_sweep_overrides=True, task=True)
+                       from_shell=True, validate_sweep_overrides=True)
         OmegaConf.copy_cache(from_config=master_config, to_config=cfg)
         return cfg
 
