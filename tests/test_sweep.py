@@ -91,3 +91,13 @@ def test_failed_jobs_are_rows_and_the_same_sweep_resumes(tmp_path: Path) -> None
     assert "3/3 jobs done, 2 failed, 1 resumed" in out
     assert steps.stat().st_mtime_ns == before
     assert len(pd.read_parquet(tmp_path / "summary.parquet")) == 3
+
+
+def test_started_workers_run_the_sweep(tmp_path: Path) -> None:
+    # spawned workers inherit nothing: they are sent the task, the config and Hydra's
+    # singletons (forked ones and the launching process use their own)
+    out = sweep("+experiment=car_cvxpy", "+ci=smoke", "seed=0,1", "hydra.launcher.n_jobs=2",
+                "hydra.launcher.start_method=spawn", f"hydra.sweep.dir={tmp_path}")
+    df = pd.read_parquet(tmp_path / "summary.parquet")
+    assert len(df) == 2 and (df["status"] != "error").all(), df.get("error")
+    assert "2/2 jobs done, 0 failed" in out and "(spawn)" in out

@@ -66,14 +66,18 @@ _WORKER: dict[str, Any] = {}
 
 def _init_worker(
     hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
-    singleton_state: dict[Any, Any], threads: int, workers: int,
+    singleton_state: dict[Any, Any] | None, threads: int, workers: int,
 ) -> None:
+    """Set up this process to run jobs; ``singleton_state``: Hydra's singletons (config
+    store, runtime, resolvers) for a started worker, None where they are this process's own
+    (in the launching process, or forked from it)."""
     for var in THREAD_VARS:
         os.environ[var] = str(threads)
     os.environ[WORKERS_VAR] = str(workers)
     threadpool_limits(threads)  # pools already loaded (numpy's BLAS) follow the variables
     setup_globals()
-    Singleton.set_state(singleton_state)
+    if singleton_state is not None:
+        Singleton.set_state(singleton_state)  # and scans Hydra's plugins again
     hydra_context.config_loader = cached(hydra_context.config_loader)
     _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function)
 
@@ -168,8 +172,11 @@ class PoolLauncher(Launcher):
                  "in this process" if n == 1 else self.start_method, sweep_dir)
         for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
             log.debug("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
-        init = (self.hydra_context, self.config, self.task_function, Singleton.get_state(),
-                self.threads, n)
+        # a forked worker inherits Hydra's singletons, the launching process has them; only a
+        # started worker needs a copy (Hydra's get_state deep-copies the config store)
+        started = n > 1 and self.start_method != "fork"
+        init = (self.hydra_context, self.config, self.task_function,
+                Singleton.get_state() if started else None, self.threads, n)
         jobs = list(enumerate(job_overrides, start=initial_job_idx))
         if n == 1:
             results = self._in_process(jobs, init)
@@ -186,6 +193,7 @@ class PoolLauncher(Launcher):
             _init_worker(*init)
             return {idx: _run_one(idx, ov) for idx, ov in jobs}
         finally:
+            gc.unfreeze()  # frozen by _run_one after the first job; this process goes on
             limits.restore_original_limits()
             for var, value in saved.items():
                 if value is None:
