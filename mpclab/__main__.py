@@ -177,4 +177,7 @@ def exit_now(code: int) -> None:
 
 
 if __name__ == "__main__":
+    # what the imports built lives as long as the process: out of the collector's way, so
+    # that its full passes while composing and running do not walk it again (0.08 s)
+    gc.freeze()
     exit_now(cli())

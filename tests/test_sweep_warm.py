@@ -16,7 +16,6 @@ import numpy as np
 import pandas as pd
 import pytest
 from hydra import initialize_config_dir
-from hydra._internal.config_loader_impl import ConfigLoaderImpl
 from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import ConfigCompositionException
 from hydra.types import RunMode
@@ -105,8 +104,10 @@ def test_a_cached_command_config_is_hydras(loader, monkeypatch, overrides, mode)
         assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want)
 
 
-def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch) -> None:
+def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch, tmp_path,
+                                                        request) -> None:
     monkeypatch.setattr(compose_module, "_BASES", OrderedDict())
+    monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path))  # no tree stored by an earlier command
     hydra = GlobalHydra.instance().hydra
     original = hydra.config_loader
     sweep = ["+experiment=zumo_bug2", "seed=range(0,4)", "controller.horizon=8,10",
@@ -114,14 +115,7 @@ def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch) -> 
     want = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
     job = ["+experiment=zumo_bug2", "seed=3", "controller.horizon=10"]
     want_job = original.load_sweep_config(want, job)
-    calls: list[RunMode] = []
-    impl = ConfigLoaderImpl._load_configuration_impl
-
-    def counted(self, **kw):
-        calls.append(kw["run_mode"])
-        return impl(self, **kw)
-
-    monkeypatch.setattr(ConfigLoaderImpl, "_load_configuration_impl", counted)
+    calls = request.getfixturevalue("hydra_calls")  # from here on
     compose_module._BASES[("stale",)] = (b"", b"")  # a tree kept by an earlier command
     with composing_once():
         assert ("stale",) not in compose_module._BASES  # each command composes anew

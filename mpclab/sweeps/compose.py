@@ -43,6 +43,8 @@ from hydra.core.override_parser.types import Override
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
+from mpclab.sweeps import compose_store
+
 _Frozen = bytes | DictConfig  # a config pickled, or itself where it does not pickle
 
 #: composed base configs kept per process, most recent last: (whole, without ``hydra``)
@@ -137,14 +139,23 @@ def _compose(loader: Any, compose: Any, task: bool = False, **kw: Any) -> DictCo
     key = (kw["config_name"], lines)
     base = _BASES.get(key)
     if base is None:
-        try:
-            cfg = compose(config_name=kw["config_name"], overrides=list(lines),
-                          run_mode=RunMode.RUN)
-        except Exception:  # noqa: BLE001  (Hydra's own call raises Hydra's own error)
-            if kw["run_mode"] == RunMode.RUN:
-                raise
-            return compose(**kw)
-        frozen = _frozen(cfg)
+        # a command line that moves the search path composes with Hydra every time
+        stored = compose_store.enabled() and not any(
+            o.key_or_group == "hydra.searchpath" for o in parsed)
+        cfg = compose_store.load(repo, kw["config_name"], lines, _thawed) if stored else None
+        if cfg is None:
+            try:
+                cfg = compose(config_name=kw["config_name"], overrides=list(lines),
+                              run_mode=RunMode.RUN)
+            except Exception:  # noqa: BLE001  (Hydra's own call raises Hydra's own error)
+                if kw["run_mode"] == RunMode.RUN:
+                    raise
+                return compose(**kw)
+            frozen = _frozen(cfg)
+            if stored and isinstance(frozen, bytes):
+                compose_store.save(repo, kw["config_name"], lines, frozen, cfg)
+        else:
+            frozen = _frozen(cfg)
         base = _BASES[key] = (frozen, _frozen(_without_hydra(_thawed(frozen))))
         while len(_BASES) > _MAX_BASES:
             _BASES.popitem(last=False)
