@@ -119,3 +119,11 @@ def test_a_torn_entry_or_the_switch_composes_with_hydra(store, hydra_calls, monk
     entry.unlink()
     _compose(CONF, command, RunMode.RUN)
     assert not list(store.glob("*.pkl"))
+
+
+def test_the_store_keeps_the_newest_entries(store, monkeypatch) -> None:
+    monkeypatch.setattr(compose_store, "MAX_ENTRIES", 2)
+    choices = ["scenario=car_to_origin", "controller=casadi", "recorder=none"]
+    for choice in choices:  # three commands, three trees
+        _compose(CONF, ["+experiment=car_cvxpy", choice], RunMode.RUN)
+    assert len(list(store.glob("*.pkl"))) == 2

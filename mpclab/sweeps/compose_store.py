@@ -51,6 +51,8 @@ SWITCH_VAR = "MPCLAB_COMPOSE_CACHE"
 #: the entries' layout; a new one leaves older entries unread
 FORMAT = 1
 CONFIG_SUFFIXES = (".yaml", ".yml")
+#: entries kept: one per command's group overrides, the oldest written dropped first
+MAX_ENTRIES = 256
 
 
 def enabled() -> bool:
@@ -97,8 +99,16 @@ def save(repo: Any, config_name: str | None, lines: Sequence[str], frozen: bytes
         with os.fdopen(fd, "wb") as f:
             f.write(blob)
         os.replace(tmp, path)  # whole or not at all, for a concurrent reader
+        _prune(path.parent)
     except Exception:  # noqa: BLE001  (a cache that cannot be written: compose next time)
         return
+
+
+def _prune(folder: Path) -> None:
+    """Keep the :data:`MAX_ENTRIES` most recently written entries (each about 25 kB)."""
+    entries = sorted(folder.glob("*.pkl"), key=lambda p: p.stat().st_mtime_ns)
+    for old in entries[:-MAX_ENTRIES]:
+        old.unlink(missing_ok=True)
 
 
 def _ident(repo: Any, config_name: str | None, lines: Sequence[str]) -> str:
