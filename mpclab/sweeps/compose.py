@@ -16,7 +16,7 @@ Hydra's own function, then fills in the ``hydra.overrides`` lists and
 Within :func:`composing_once` (``python -m mpclab``), Hydra's two compositions of a command's
 config (to read its ``hydra.mode``, then to run it) and a sweep's jobs share one tree: the
 launching process composes it once, and the pool launcher's workers, forked after that,
-inherit it.
+inherit it. Between commands, :mod:`mpclab.sweeps.compose_store` keeps the tree on disk.
 
 The cache is per process (module level), so that a warm worker keeps it between jobs; it is
 not pickled with the loader (joblib and Ray ship the loader to their workers). It holds each
@@ -142,8 +142,9 @@ def _compose(loader: Any, compose: Any, task: bool = False, **kw: Any) -> DictCo
         # a command line that moves the search path composes with Hydra every time
         stored = compose_store.enabled() and not any(
             o.key_or_group == "hydra.searchpath" for o in parsed)
-        cfg = compose_store.load(repo, kw["config_name"], lines, _thawed) if stored else None
-        if cfg is None:
+        cfg = compose_store.load(repo, kw["config_name"], lines) if stored else None
+        composed = cfg is None
+        if composed:
             try:
                 cfg = compose(config_name=kw["config_name"], overrides=list(lines),
                               run_mode=RunMode.RUN)
@@ -151,11 +152,9 @@ def _compose(loader: Any, compose: Any, task: bool = False, **kw: Any) -> DictCo
                 if kw["run_mode"] == RunMode.RUN:
                     raise
                 return compose(**kw)
-            frozen = _frozen(cfg)
-            if stored and isinstance(frozen, bytes):
-                compose_store.save(repo, kw["config_name"], lines, frozen, cfg)
-        else:
-            frozen = _frozen(cfg)
+        frozen = _frozen(cfg)
+        if stored and composed and isinstance(frozen, bytes):
+            compose_store.save(repo, kw["config_name"], lines, frozen, cfg)
         base = _BASES[key] = (frozen, _frozen(_without_hydra(_thawed(frozen))))
         while len(_BASES) > _MAX_BASES:
             _BASES.popitem(last=False)

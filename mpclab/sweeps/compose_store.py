@@ -56,14 +56,13 @@ MAX_ENTRIES = 256
 
 
 def enabled() -> bool:
+    """Whether commands use the store (:data:`SWITCH_VAR` is not ``0``)."""
     return os.environ.get(SWITCH_VAR, "1") != "0"
 
 
-def load(repo: Any, config_name: str | None, lines: Sequence[str],
-         thaw: Any) -> DictConfig | None:
+def load(repo: Any, config_name: str | None, lines: Sequence[str]) -> DictConfig | None:
     """The tree stored for these group override ``lines`` composed from ``repo`` (Hydra's
-    config repository: its search path), if its sources are unchanged (``thaw``: bytes ->
-    config); None on a miss."""
+    config repository: its search path), if its sources are unchanged; None on a miss."""
     ident = _ident(repo, config_name, lines)
     path = _path(ident)
     try:
@@ -72,7 +71,7 @@ def load(repo: Any, config_name: str | None, lines: Sequence[str],
             raise ValueError("another command's entry")
         if _fingerprint(entry["sources"]) != entry["fingerprint"]:
             raise ValueError("a config source has changed")
-        cfg = thaw(entry["config"])
+        cfg = pickle.loads(entry["config"])
     except Exception as exc:  # noqa: BLE001  (missing, torn, another layout: compose anew)
         log.debug("composing %s: not stored (%s: %s)", ident, type(exc).__name__, exc)
         return None
@@ -117,16 +116,8 @@ def _ident(repo: Any, config_name: str | None, lines: Sequence[str]) -> str:
     base = hydra_versions.getbase()
     search_path = tuple((s.scheme(), s.path) for s in repo.get_sources())
     return repr((FORMAT, sys.version_info[:3], hydra_version, omegaconf.__version__,
-                 _job_name(), None if base is None else str(base), search_path, config_name,
-                 tuple(lines)))
-
-
-def _job_name() -> str | None:
-    """The name Hydra gives a job whose config names none (``hydra.job.name``)."""
-    try:
-        return str(JobRuntime.instance().get("name"))
-    except KeyError:
-        return None
+                 str(JobRuntime.instance().get("name")),  # a job's name unless its config sets one
+                 None if base is None else str(base), search_path, config_name, tuple(lines)))
 
 
 def _path(ident: str) -> Path:
