@@ -7,6 +7,7 @@ workers), shortened by ``+ci=smoke``. ``test_sweep_jobs.py`` checks resume rules
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -101,3 +102,44 @@ def test_started_workers_run_the_sweep(tmp_path: Path) -> None:
     df = pd.read_parquet(tmp_path / "summary.parquet")
     assert len(df) == 2 and (df["status"] != "error").all(), df.get("error")
     assert "2/2 jobs done, 0 failed" in out and "(spawn)" in out
+
+
+DIES = '''"""A scenario that kills its own process in the job with seed=1 (a stand-in for a crash in
+native code, or the kernel's OOM killer)."""
+import inspect
+import os
+import pydoc
+import signal
+
+from hydra.core.hydra_config import HydraConfig
+
+
+def scenario(plant, rng, **options):
+    if "seed=1" in HydraConfig.get().overrides.task:
+        os.kill(os.getpid(), signal.SIGKILL)
+    real = pydoc.locate({real!r})
+    deps = {{"plant": plant, "rng": rng}}
+    takes = inspect.signature(real).parameters
+    return real(**options, **{{k: v for k, v in deps.items() if k in takes}})
+'''
+
+
+def test_a_worker_that_dies_costs_only_its_own_job(tmp_path: Path) -> None:
+    base = ["+experiment=car_cvxpy", "+ci=smoke"]
+    (tmp_path / "dies.py").write_text(DIES.format(real=compose_cfg(base).scenario._target_))
+    out_dir = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "mpclab", "-m", *base, "scenario._target_=dies.scenario",
+           "seed=0,1,2,3", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={out_dir}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    df = pd.read_parquet(out_dir / "summary.parquet").set_index("seed")
+    assert len(df) == 4 and "4/4 jobs done, 1 failed" in out, out[-4000:]
+    # the job that killed its worker (twice: once among the others, once alone) is a row
+    assert df.loc[1, "status"] == "error"
+    assert "worker process" in df.loc[1, "error"] and "SIGKILL" in df.loc[1, "error"]
+    # the jobs that ran beside it, or after it, ran to the end, in the same backend's group
+    assert (df.drop(index=1)["status"] != "error").all(), df["error"]
+    assert df["backend"].nunique() == 1
+    assert "Traceback" not in out

@@ -56,3 +56,21 @@ def test_an_error_row_is_run_again(tmp_path: Path) -> None:
 def test_a_torn_summary_is_not_complete(tmp_path: Path) -> None:
     (tmp_path / "summary.json").write_text('{"status": "arr')
     assert jobs.complete_summary(tmp_path, BASE) is None
+
+
+def test_an_error_row_names_its_backend_as_a_finished_run_does() -> None:
+    # zumo_bug2 chooses controller=casadi_fatrop, a CasadiMPC: a finished run's row says
+    # "casadi", and a failed one must too, or the tables put it in a group of its own
+    base = ["+experiment=zumo_bug2", "+ci=smoke"]
+    cfg = compose_cfg(base)
+    choices = {"plant": "zumo", "controller": "casadi_fatrop", "scenario": "zumo_dead_end"}
+    exc = ValueError("boom")
+    from_job = jobs.error_summary(exc, base, cfg, choices)
+    assert (from_job["controller"], from_job["plant"]) == ("casadi", "zumo")
+    # a job whose config did not compose: named from the sweep's config...
+    bad_value = jobs.error_summary(exc, [*base, "controller.horizon=ten"], None, choices, cfg)
+    assert bad_value["controller"] == "casadi"
+    # ...unless the job chose that group itself: then by its choice
+    bad_group = jobs.error_summary(exc, [*base, "controller=nope"], None, choices, cfg)
+    assert bad_group["controller"] == "nope" and bad_group["plant"] == "zumo"
+    assert jobs.error_summary(exc, base, None, choices)["controller"] == "casadi_fatrop"

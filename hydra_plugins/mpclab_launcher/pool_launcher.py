@@ -18,7 +18,12 @@ dominated a sweep of short jobs (issue 16). This launcher:
 * keeps what a worker built between jobs (``mpclab.warm``: the plant, objective and compiled
   controller of the same structure);
 * returns each job as soon as it ends and writes ``<sweep>/.mpclab/tasks.jsonl`` (per job:
-  worker, time in the worker, time in the closed loop).
+  worker, time in the worker, time in the closed loop);
+* goes on when a worker process dies (killed for memory, a crash in a solver's native code):
+  the jobs that were running then are run again one at a time, each in a process of its
+  own; a job whose process dies again becomes an error row that says so, and the other jobs
+  run on a new pool. (With ``n_jobs=1`` the jobs run in the launching process, and such a
+  crash ends the sweep: the rows written so far stay, and the same command resumes it.)
 
 Selected by ``conf/hydra/launcher/local.yaml`` (the default); Hydra's joblib launcher stays
 available as ``hydra/launcher=joblib`` and the Ray launcher as ``hydra/launcher=ray_cluster``.
@@ -31,9 +36,12 @@ import json
 import logging
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +54,7 @@ from omegaconf import DictConfig, open_dict
 from threadpoolctl import threadpool_limits
 
 from hydra_plugins.mpclab_launcher.job import run_owned_job
-from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_compose_error
+from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import cached
 
@@ -64,13 +72,19 @@ START_METHODS = ("fork", "forkserver", "spawn")
 _WORKER: dict[str, Any] = {}
 
 
+class WorkerDied(RuntimeError):
+    """The worker process running a job died (its error row's message)."""
+
+
 def _init_worker(
     hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
     singleton_state: dict[Any, Any] | None, threads: int, workers: int,
+    started: Any = None,
 ) -> None:
     """Set up this process to run jobs; ``singleton_state``: Hydra's singletons (config
     store, runtime, resolvers) for a started worker, None where they are this process's own
-    (in the launching process, or forked from it)."""
+    (in the launching process, or forked from it); ``started``: the pool's shared array in
+    which a worker writes its pid at the slot of each job it starts."""
     for var in THREAD_VARS:
         os.environ[var] = str(threads)
     os.environ[WORKERS_VAR] = str(workers)
@@ -79,17 +93,24 @@ def _init_worker(
     if singleton_state is not None:
         Singleton.set_state(singleton_state)  # and scans Hydra's plugins again
     hydra_context.config_loader = cached(hydra_context.config_loader)
-    _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function)
+    _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function,
+                   started=started)
 
 
-def _init_pickled(blob: bytes) -> None:
+def _init_pickled(blob: bytes, started: Any = None) -> None:
     """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
-    (Hydra's configs hold classes that the standard pickle cannot find by name)."""
-    _init_worker(*cloudpickle.loads(blob))
+    (Hydra's configs hold classes that the standard pickle cannot find by name); the shared
+    ``started`` array apart (it is passed on only when the process starts)."""
+    _init_worker(*cloudpickle.loads(blob), started=started)
 
 
-def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, Any]]:
-    """Compose and run job ``idx`` in this worker; the result without its configs."""
+def _run_one(
+    idx: int, overrides: Sequence[str], slot: int | None = None,
+) -> tuple[JobReturn, dict[str, Any]]:
+    """Compose and run job ``idx`` in this worker; the result without its configs. ``slot``:
+    the job's place in the pool's ``started`` array (where this worker's pid is written)."""
+    if slot is not None:
+        _WORKER["started"][slot] = os.getpid()
     if _WORKER.setdefault("jobs", 0) == 1:
         # what the first job built stays: out of the garbage collector's way, so that
         # its full collections (tens of ms over the configs and solvers) do not recur
@@ -103,7 +124,7 @@ def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, A
         task_cfg = ctx.config_loader.load_task_config(config, list(overrides))  # no hydra
     except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
         log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
-        ret = record_compose_error(ctx, config, idx, overrides, exc)
+        ret = record_job_error(ctx, config, idx, overrides, exc)
     else:
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
@@ -114,6 +135,14 @@ def _run_one(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, A
     timing = value.get("timing", {}) if isinstance(value, dict) else {}
     info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, **timing}
     return ret, info
+
+
+def _run_alone(send: Connection, initializer: Any, initargs: tuple[Any, ...], idx: int,
+               overrides: Sequence[str], slot: int) -> None:
+    """Run job ``idx`` in a process of its own (after a worker died) and send its result."""
+    initializer(*initargs)
+    send.send(_run_one(idx, overrides, slot))
+    send.close()
 
 
 class PoolLauncher(Launcher):
@@ -204,23 +233,58 @@ class PoolLauncher(Launcher):
     def _on_pool(self, jobs: list[tuple[int, Sequence[str]]], init: tuple[Any, ...],
                  n: int) -> dict[int, tuple[JobReturn, dict[str, Any]]]:
         ctx = multiprocessing.get_context(self.start_method)
-        results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}
+        # per job (its place in ``jobs``): the pid of the worker that started it, 0 before
+        started = ctx.RawArray("q", len(jobs))
         if self.start_method == "fork":  # inherited, not pickled
-            initializer, initargs = _init_worker, init
+            initializer, initargs = _init_worker, (*init, started)
         else:
-            initializer, initargs = _init_pickled, (cloudpickle.dumps(init),)
-        pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=initializer,
-                                   initargs=initargs)
+            initializer, initargs = _init_pickled, (cloudpickle.dumps(init), started)
+        results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}
+        todo = list(range(len(jobs)))
+        while todo:
+            lost = self._pool_round(ctx, jobs, todo, initializer, initargs, n, results)
+            if not lost:
+                break
+            running = [slot for slot in lost if started[slot]]
+            if not running:  # no job started: the workers themselves cannot start
+                raise RuntimeError("mpclab pool launcher: the worker processes died before "
+                                   "running any job (see the log above)")
+            log.error("a worker process died; the %d job(s) running then run again one at a "
+                      "time, each in a process of its own, then the other %d on new workers",
+                      len(running), len(lost) - len(running))
+            for slot in running:
+                results[jobs[slot][0]] = self._alone(ctx, initializer, initargs, jobs, slot)
+            todo = [slot for slot in lost if not started[slot]]
+        return results
+
+    def _pool_round(
+        self, ctx: Any, jobs: list[tuple[int, Sequence[str]]], todo: list[int],
+        initializer: Any, initargs: tuple[Any, ...], n: int,
+        results: dict[int, tuple[JobReturn, dict[str, Any]]],
+    ) -> list[int]:
+        """Run the jobs at ``todo`` (places in ``jobs``) on a new pool of ``n`` workers into
+        ``results``; return the places of those lost because a worker died."""
+        pool = ProcessPoolExecutor(max_workers=min(n, len(todo)), mp_context=ctx,
+                                   initializer=initializer, initargs=initargs)
+        lost: list[int] = []
         # what the workers inherit stays out of their garbage collector's way: a collection
         # in a forked worker would otherwise write to (and so copy) every inherited page
         gc.freeze()
         try:
-            futures: dict[Future, int] = {pool.submit(_run_one, idx, ov): idx
-                                          for idx, ov in jobs}
+            futures: dict[Future, int] = {pool.submit(_run_one, *jobs[slot], slot): slot
+                                          for slot in todo}
             # as_completed waits on every future once; wait() in a loop would register with
             # every pending future again after each job (quadratic in the jobs)
             for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
+                slot = futures[fut]
+                idx, overrides = jobs[slot]
+                try:
+                    results[idx] = fut.result()
+                except BrokenProcessPool:  # every job not yet done, once a worker died
+                    lost.append(slot)
+                except Exception as exc:  # noqa: BLE001  (e.g. a result that cannot pickle)
+                    log.error("job %d: its worker could not return it: %r", idx, exc)
+                    results[idx] = self._error_row(idx, overrides, exc, {"job": idx})
         except BaseException:
             pool.shutdown(wait=True, cancel_futures=True)
             raise
@@ -228,7 +292,53 @@ class PoolLauncher(Launcher):
             gc.unfreeze()
         # every job is done: the workers exit while this process writes the sweep's tables
         pool.shutdown(wait=False)
-        return results
+        return sorted(lost)
+
+    def _alone(self, ctx: Any, initializer: Any, initargs: tuple[Any, ...],
+               jobs: list[tuple[int, Sequence[str]]], slot: int,
+               ) -> tuple[JobReturn, dict[str, Any]]:
+        """Run the job at ``slot`` in a new process of its own; if that process dies too,
+        the job's error row says how."""
+        idx, overrides = jobs[slot]
+        receive, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_run_alone, daemon=True,
+                           args=(send, initializer, initargs, idx, overrides, slot))
+        proc.start()
+        send.close()
+        try:
+            return receive.recv()
+        except EOFError:  # it died without sending
+            pass
+        finally:
+            proc.join()
+            receive.close()
+        how = _death(proc.exitcode or 0)
+        exc = WorkerDied(f"the worker process running this job died ({how}), also when it "
+                         "ran alone: out of memory, or a crash in native code?")
+        log.error("job %d (%s): %s", idx, " ".join(overrides), exc)
+        return self._error_row(idx, overrides, exc, {"job": idx, "pid": proc.pid, "died": how})
+
+    def _error_row(self, idx: int, overrides: Sequence[str], exc: Exception,
+                   info: dict[str, Any]) -> tuple[JobReturn, dict[str, Any]]:
+        """Job ``idx``'s error row, written here (its worker could not write it)."""
+        assert self.hydra_context is not None and self.config is not None
+        try:  # its config composed in the worker; here it names the job's components
+            job_cfg = cached(self.hydra_context.config_loader).load_task_config(
+                self.config, list(overrides))
+        except Exception:  # noqa: BLE001  (the row is written all the same)
+            job_cfg = None
+        ret = record_job_error(self.hydra_context, self.config, idx, overrides, exc, job_cfg)
+        return ret, info
+
+
+def _death(exitcode: int) -> str:
+    """How a process ended, from its exit code (negative: the signal that killed it)."""
+    if exitcode >= 0:
+        return f"exit code {exitcode}"
+    try:
+        return f"killed by {signal.Signals(-exitcode).name}"
+    except ValueError:
+        return f"killed by signal {-exitcode}"
 
 
 def _write_tasks(sweep_dir: Path, infos: list[dict[str, Any]]) -> None:

@@ -58,16 +58,18 @@ class TolerantSweeper(BasicSweeper):
                 self.compose_errors[tuple(overrides)] = exc
 
     def record_error(self, idx: int, overrides: Sequence[str], exc: Exception) -> JobReturn:
-        return record_compose_error(self.hydra_context, self.config, idx, overrides, exc)
+        return record_job_error(self.hydra_context, self.config, idx, overrides, exc)
 
 
-def record_compose_error(
+def record_job_error(
     hydra_context: HydraContext, master: DictConfig, idx: int, overrides: Sequence[str],
-    exc: Exception,
+    exc: Exception, job_cfg: DictConfig | None = None,
 ) -> JobReturn:
-    """Write the error row of job ``idx`` whose config failed to compose; tell the callbacks.
+    """Write the error row of job ``idx``, which could not record itself (its config failed
+    to compose, or the worker process running it died); tell the callbacks.
 
-    ``master`` is the sweep's config (its ``hydra.sweep.dir``, with its clock cached).
+    ``master`` is the sweep's config (its ``hydra.sweep.dir``, with its clock cached);
+    ``job_cfg`` the job's own, where it composed (it names the job's components).
     """
     cfg = copy.deepcopy(master)
     with open_dict(cfg):
@@ -76,7 +78,7 @@ def record_compose_error(
     sweep_dir = Path(str(master.hydra.sweep.dir))
     out_dir = sweep_dir / str(OmegaConf.select(cfg, "hydra.sweep.subdir"))
     choices = OmegaConf.to_container(master.hydra.runtime.choices)
-    summary = error_summary(exc, overrides, cfg=None, choices=choices)
+    summary = error_summary(exc, overrides, cfg=job_cfg, choices=choices, base=master)
     summary["experiment"] = cfg.get("name")
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / ".hydra").mkdir(exist_ok=True)

@@ -9,8 +9,10 @@ sweep folder maps every job to the same folder again.
 
 from __future__ import annotations
 
+import inspect
 import logging
 import os
+import pydoc
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
@@ -69,21 +71,44 @@ def error_message(exc: BaseException) -> str:
     return line(root) if root is exc else f"{line(root)} (in {line(exc)})"
 
 
+def component_name(node: Any) -> str | None:
+    """What a run's row calls the plant or controller that config ``node`` builds: its
+    class's registered name (as a finished run writes it), None where ``node`` names no
+    class that imports."""
+    if not isinstance(node, DictConfig) or "_target_" not in node.keys():
+        return None
+    try:
+        obj = pydoc.locate(str(node["_target_"]))
+    except Exception:  # noqa: BLE001  (pydoc.ErrorDuringImport, a bad interpolation)
+        return None
+    return getattr(obj, "registered_name", obj.__name__) if inspect.isclass(obj) else None
+
+
 def error_summary(
     exc: BaseException, overrides: Sequence[str], cfg: DictConfig | None = None,
-    choices: dict[str, Any] | None = None,
+    choices: dict[str, Any] | None = None, base: DictConfig | None = None,
 ) -> dict[str, Any]:
     """The run-record summary of a job that raised ``exc`` before or while running.
 
-    Names come from ``cfg`` and the Hydra group ``choices`` when they are known.
+    Plant and controller are named as a finished run names them (:func:`component_name`)
+    from the job's config ``cfg``, else from ``base`` (the sweep's config, for a group the
+    job's overrides do not choose), else by their Hydra group choice; so a failed job falls
+    in its backend's group of the tables, not in one of its own.
     """
     named = {**(choices or {}), **dict(o.lstrip("+").split("=", 1) for o in overrides if "=" in o)}
+    chosen = {o.lstrip("+").split("=", 1)[0] for o in overrides if "=" in o}
     name = cfg.get("name") if cfg is not None else None
     seed = cfg.get("seed") if cfg is not None else named.get("seed")
+
+    def component(group: str) -> Any:
+        source = cfg if cfg is not None else (base if group not in chosen else None)
+        found = component_name(source.get(group)) if source is not None else None
+        return found or named.get(group)
+
     return {
         "experiment": name,
-        "plant": named.get("plant"),
-        "controller": named.get("controller"),
+        "plant": component("plant"),
+        "controller": component("controller"),
         "scenario": named.get("scenario"),
         "seed": int(seed) if str(seed).lstrip("-").isdigit() else None,
         "status": "error",
