@@ -28,6 +28,7 @@ from mpclab.origin import RunOrigin
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
+from mpclab.sweeps.callbacks import forget_sweep, interrupted_sweep
 from mpclab.sweeps.compose import composing_once
 
 register_all()  # every component's schema must be in the ConfigStore before composing
@@ -131,7 +132,9 @@ def cli(argv: Sequence[str] | None = None) -> int:
         error = wrapped.error
     except KeyboardInterrupt as exc:
         where = getattr(exc, "out_dir", None)
+        sweep = interrupted_sweep()
         sys.stderr.write("mpclab: interrupted" + (
+            f"; {sweep}\n" if sweep else
             f"; the steps so far are in {where} (status 'interrupted')\n" if where else "\n"))
         return EXIT_INTERRUPTED
     except SystemExit as exc:  # --help, --cfg, Hydra's own usage errors
@@ -139,6 +142,7 @@ def cli(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001  (composing, Hydra's folders: sorted below)
         error = exc
     finally:
+        forget_sweep()
         sys.argv = saved_argv
         for handler in root.handlers:
             if handler not in saved_logging[0]:

@@ -35,7 +35,8 @@ BACKENDS = [
 def inject(monkeypatch, cls: type, plan: dict[int, str]) -> None:
     """Make ``cls._solve`` fail on the calls named in ``plan`` (1-based): ``raise`` raises,
     ``nan`` returns the real result labelled as it was but with a NaN input, ``ctrl-c``
-    raises KeyboardInterrupt, ``always`` raises on every call."""
+    raises KeyboardInterrupt (``ctrl-c-casadi-*``: as CasADi hands it back), ``always``
+    raises on every call."""
     real = cls._solve
     calls = {"n": 0}
 
@@ -46,6 +47,14 @@ def inject(monkeypatch, cls: type, plan: dict[int, str]) -> None:
             raise RuntimeError("injected failure")
         if what == "ctrl-c":
             raise KeyboardInterrupt
+        if what == "ctrl-c-casadi-solver":  # CasADi's KeyboardInterruptException
+            raise RuntimeError("KeyboardInterrupt")
+        if what == "ctrl-c-casadi-function":  # SIGINT inside a generated function's call
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise SystemError("<built-in function _function_buffer_eval> returned a "
+                                  "result with an exception set") from exc
         res = real(self, t, x, ctx)
         if what == "nan":
             res.u = np.full_like(res.u, np.nan)
@@ -115,6 +124,19 @@ def test_ctrl_c_writes_the_partial_record(monkeypatch, tmp_path: Path) -> None:
     assert len(steps) == 4 and steps["status"].iloc[-1] == record.FINAL
 
 
+@pytest.mark.parametrize("shape", ["ctrl-c-casadi-solver", "ctrl-c-casadi-function"])
+def test_ctrl_c_inside_casadi_stops_the_run(shape, monkeypatch, tmp_path: Path) -> None:
+    # a real SIGINT during a CasADi solve comes back in one of these shapes (seen with
+    # car_casadi and zumo_bug2); it used to count as a failed solve, and the run went on
+    inject(monkeypatch, CasadiMPC, {4: shape})
+    cfg = compose_cfg(["+experiment=car_casadi", "+ci=smoke"])
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(cfg, tmp_path)
+    s = record.read_summary(tmp_path)
+    assert s["status"] == "interrupted" and s["n_steps"] == 3
+    assert not s.get("solves_exception")
+
+
 def test_ctrl_c_on_the_command_line(monkeypatch, capsys, tmp_path: Path) -> None:
     inject(monkeypatch, CvxpyMPC, {3: "ctrl-c"})
     out = tmp_path / "run"
@@ -174,3 +196,21 @@ def test_a_short_run_stays_quiet(monkeypatch, caplog) -> None:
             clock.now = 0.01 * k
             p(0.1 * k, 30.0)
     assert not caplog.records
+
+
+def test_ctrl_c_in_a_sweep_says_how_to_resume(monkeypatch, capsys, tmp_path: Path) -> None:
+    # the second job's third controller call is interrupted (jobs run in this process)
+    inject(monkeypatch, CvxpyMPC, {13: "ctrl-c"})
+    code = cli(["-m", "+experiment=car_cvxpy", "+ci=smoke", "seed=0,1,2",
+                "hydra.launcher.n_jobs=1", f"hydra.sweep.dir={tmp_path}"])
+    assert code == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert f"1 of 3 jobs of the sweep in {tmp_path} are done" in err, err
+    assert "the same command resumes it" in err and f"python -m mpclab.tables {tmp_path}" in err
+    assert record.read_summary(tmp_path / "1")["status"] == "interrupted"
+    # the next command in this process is no sweep: its own message
+    inject(monkeypatch, CvxpyMPC, {3: "ctrl-c"})
+    assert cli(["+experiment=car_cvxpy", "+ci=smoke", f"hydra.run.dir={tmp_path / 'run'}"]) \
+        == EXIT_INTERRUPTED
+    assert "the steps so far are in" in capsys.readouterr().err

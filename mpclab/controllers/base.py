@@ -89,6 +89,25 @@ class ControlStep:
         return all(map(math.isfinite, self.u.tolist())) and math.isfinite(self.u_pred.sum())
 
 
+def interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C that native code handed back as another error; it must
+    stop the run, not count as a failed solve. CasADi's solvers check for SIGINT between
+    iterations and raise ``RuntimeError('KeyboardInterrupt')`` (their
+    ``KeyboardInterruptException``); a SIGINT inside a generated function comes back as
+    ``SystemError: ... returned a result with an exception set``, raised from the
+    ``KeyboardInterrupt``."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        if isinstance(cause, RuntimeError) and str(cause).strip().endswith("KeyboardInterrupt"):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
 class Controller(ABC):
     """Base class of all backends.
 
@@ -121,6 +140,8 @@ class Controller(ABC):
         try:
             res = self._solve(t, x, ctx)
         except Exception as exc:  # a solver crash must not end a sweep: record and fall back
+            if interrupted(exc):  # Ctrl-C inside native code, handed back as another error
+                raise KeyboardInterrupt from exc
             res = self._failed(SolveStatus.exception, x, type(exc).__name__, str(exc))
         if res.ok and not res.finite:  # a "success" with NaN or inf in it is a failure
             res = self._failed(SolveStatus.failed, x, f"non_finite({res.solver_status})",

@@ -33,6 +33,8 @@ PROGRESS_FILE = "progress.jsonl"
 #: files of one sweep's run, emptied when it starts (rows.jsonl: mpclab.tables.ROWS_FILE)
 STREAMS = (PROGRESS_FILE, "rows.jsonl", "tasks.jsonl")
 BAR_WIDTH = 20
+#: the folder of the sweep this process is launching, from its start to its end
+_LAUNCHING: list[Path] = []
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -55,6 +57,29 @@ def count_jobs(config: DictConfig) -> int | None:
     except Exception:  # noqa: BLE001  (a sweep Hydra will report on; progress just has no total)
         return None
     return sum(len(b) for b in batches)
+
+
+def interrupted_sweep() -> str | None:
+    """What to tell a user who interrupted the sweep this process was launching (how many
+    jobs are recorded, how to resume, how to tabulate); None outside a sweep."""
+    if not _LAUNCHING:
+        return None
+    sweep_dir = _LAUNCHING.pop()
+    state = sweep_dir / STATE_DIR
+    try:
+        total = json.loads((state / SWEEP_FILE).read_text()).get("total")
+        done = sum(1 for line in (state / PROGRESS_FILE).read_text().splitlines() if line)
+    except (OSError, ValueError):
+        total, done = None, 0
+    of = f" of {total}" if total else ""
+    return (f"{done}{of} jobs of the sweep in {sweep_dir} are done and recorded; the same "
+            "command resumes it (skipping them), and `python -m mpclab.tables "
+            f"{sweep_dir}` makes the tables so far")
+
+
+def forget_sweep() -> None:
+    """This process launches no sweep now (its end, or its command's)."""
+    _LAUNCHING.clear()
 
 
 def _clock(seconds: float) -> str:
@@ -120,6 +145,7 @@ class SweepCallback(Callback):
         for name in STREAMS:
             (state / name).write_text("")
         self._progress.pop(state, None)
+        _LAUNCHING[:] = [Path(config.hydra.sweep.dir)]
         log.info("sweep of %s jobs into %s", total or "?", config.hydra.sweep.dir)
 
     def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
@@ -154,6 +180,7 @@ class SweepCallback(Callback):
         from mpclab.sweeps.report import write_report  # matplotlib: only when a sweep ends
 
         sweep_dir = Path(config.hydra.sweep.dir)
+        forget_sweep()
         state = sweep_dir / STATE_DIR
         jobs_end = time.time()
         try:
