@@ -20,9 +20,9 @@ dominated a sweep of short jobs (issue 16). This launcher:
 * returns each job as soon as it ends and writes ``<sweep>/.mpclab/tasks.jsonl`` (per job:
   worker, time in the worker, time in the closed loop);
 * goes on when a worker process dies (killed for memory, a crash in a solver's native code):
-  the jobs that were running then are run again one at a time, each in a process of its
-  own; a job whose process dies again becomes an error row that says so, and the other jobs
-  run on a new pool. (With ``n_jobs=1`` the jobs run in the launching process, and such a
+  the jobs that were running then are run again, each in a process of its own; a job whose
+  process dies again becomes an error row that says so, and the other jobs run on a new
+  pool. (With ``n_jobs=1`` the jobs run in the launching process, and such a
   crash ends the sweep: the rows written so far stay, and the same command resumes it.)
 
 Selected by ``conf/hydra/launcher/local.yaml`` (the default); Hydra's joblib launcher stays
@@ -41,7 +41,7 @@ import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing.connection import Connection
+from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
@@ -249,11 +249,10 @@ class PoolLauncher(Launcher):
             if not running:  # no job started: the workers themselves cannot start
                 raise RuntimeError("mpclab pool launcher: the worker processes died before "
                                    "running any job (see the log above)")
-            log.error("a worker process died; the %d job(s) running then run again one at a "
-                      "time, each in a process of its own, then the other %d on new workers",
+            log.error("a worker process died; the %d job(s) running then run again, each in a "
+                      "process of its own, then the other %d on new workers",
                       len(running), len(lost) - len(running))
-            for slot in running:
-                results[jobs[slot][0]] = self._alone(ctx, initializer, initargs, jobs, slot)
+            self._each_alone(ctx, initializer, initargs, jobs, running, n, results)
             todo = [slot for slot in lost if not started[slot]]
         return results
 
@@ -294,29 +293,42 @@ class PoolLauncher(Launcher):
         pool.shutdown(wait=False)
         return sorted(lost)
 
-    def _alone(self, ctx: Any, initializer: Any, initargs: tuple[Any, ...],
-               jobs: list[tuple[int, Sequence[str]]], slot: int,
-               ) -> tuple[JobReturn, dict[str, Any]]:
-        """Run the job at ``slot`` in a new process of its own; if that process dies too,
-        the job's error row says how."""
-        idx, overrides = jobs[slot]
-        receive, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_run_alone, daemon=True,
-                           args=(send, initializer, initargs, idx, overrides, slot))
-        proc.start()
-        send.close()
-        try:
-            return receive.recv()
-        except EOFError:  # it died without sending
-            pass
-        finally:
-            proc.join()
-            receive.close()
-        how = _death(proc.exitcode or 0)
-        exc = WorkerDied(f"the worker process running this job died ({how}), also when it "
-                         "ran alone: out of memory, or a crash in native code?")
-        log.error("job %d (%s): %s", idx, " ".join(overrides), exc)
-        return self._error_row(idx, overrides, exc, {"job": idx, "pid": proc.pid, "died": how})
+    def _each_alone(
+        self, ctx: Any, initializer: Any, initargs: tuple[Any, ...],
+        jobs: list[tuple[int, Sequence[str]]], slots: list[int], n: int,
+        results: dict[int, tuple[JobReturn, dict[str, Any]]],
+    ) -> None:
+        """Run the jobs at ``slots``, each in a new process of its own (``n`` at a time), into
+        ``results``; a job whose process dies gets an error row that says how."""
+        pending = list(slots)
+        running: dict[Connection, tuple[int, Any]] = {}
+        while pending or running:
+            while pending and len(running) < n:
+                slot = pending.pop(0)
+                receive, send = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=_run_alone, daemon=True,
+                                   args=(send, initializer, initargs, *jobs[slot], slot))
+                proc.start()
+                send.close()  # the child holds the only writing end: its death is an EOF
+                running[receive] = (slot, proc)
+            for receive in wait(list(running)):
+                slot, proc = running.pop(receive)
+                try:
+                    out = receive.recv()
+                except EOFError:  # it died without sending
+                    out = None
+                receive.close()
+                proc.join()
+                idx, overrides = jobs[slot]
+                if out is None:
+                    how = _death(proc.exitcode or 0)
+                    exc = WorkerDied(f"the worker process running this job died ({how}), also "
+                                     "when it ran alone: out of memory, or a crash in native "
+                                     "code?")
+                    log.error("job %d (%s): %s", idx, " ".join(overrides), exc)
+                    out = self._error_row(idx, overrides, exc,
+                                          {"job": idx, "pid": proc.pid, "died": how})
+                results[idx] = out
 
     def _error_row(self, idx: int, overrides: Sequence[str], exc: Exception,
                    info: dict[str, Any]) -> tuple[JobReturn, dict[str, Any]]:
