@@ -104,19 +104,20 @@ def test_started_workers_run_the_sweep(tmp_path: Path) -> None:
     assert "2/2 jobs done, 0 failed" in out and "(spawn)" in out
 
 
-DIES = '''"""A scenario that kills its own process in the job with seed=1 (a stand-in for a crash in
-native code, or the kernel's OOM killer)."""
+FAULTY = '''"""A scenario that, in the job with seed=1, kills its own process (a stand-in for a
+crash in native code, or the kernel's OOM killer) or hangs."""
 import inspect
 import os
 import pydoc
 import signal
+import time
 
 from hydra.core.hydra_config import HydraConfig
 
 
 def scenario(plant, rng, **options):
     if "seed=1" in HydraConfig.get().overrides.task:
-        os.kill(os.getpid(), signal.SIGKILL)
+        {fault}
     real = pydoc.locate({real!r})
     deps = {{"plant": plant, "rng": rng}}
     takes = inspect.signature(real).parameters
@@ -124,22 +125,41 @@ def scenario(plant, rng, **options):
 '''
 
 
-def test_a_worker_that_dies_costs_only_its_own_job(tmp_path: Path) -> None:
+def faulty_sweep(tmp_path: Path, fault: str, *overrides: str) -> tuple[pd.DataFrame, str]:
+    """A 4-job car sweep on the pool whose job with seed=1 does ``fault``; its table (by
+    seed) and console output."""
     base = ["+experiment=car_cvxpy", "+ci=smoke"]
-    (tmp_path / "dies.py").write_text(DIES.format(real=compose_cfg(base).scenario._target_))
+    real = compose_cfg(base).scenario._target_
+    (tmp_path / "faulty.py").write_text(FAULTY.format(real=real, fault=fault))
     out_dir = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "mpclab", "-m", *base, "scenario._target_=dies.scenario",
-           "seed=0,1,2,3", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={out_dir}"]
+    cmd = [sys.executable, "-m", "mpclab", "-m", *base, "scenario._target_=faulty.scenario",
+           "seed=0,1,2,3", *overrides, f"hydra.sweep.dir={out_dir}"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "PYTHONPATH": str(tmp_path)})
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-4000:]
     df = pd.read_parquet(out_dir / "summary.parquet").set_index("seed")
     assert len(df) == 4 and "4/4 jobs done, 1 failed" in out, out[-4000:]
+    return df, out
+
+
+def test_a_worker_that_dies_costs_only_its_own_job(tmp_path: Path) -> None:
+    df, out = faulty_sweep(tmp_path, "os.kill(os.getpid(), signal.SIGKILL)",
+                           "hydra.launcher.n_jobs=2")
     # the job that killed its worker (twice: once among the others, once alone) is a row
     assert df.loc[1, "status"] == "error"
     assert "worker process" in df.loc[1, "error"] and "SIGKILL" in df.loc[1, "error"]
     # the jobs that ran beside it, or after it, ran to the end, in the same backend's group
     assert (df.drop(index=1)["status"] != "error").all(), df["error"]
     assert df["backend"].nunique() == 1
+    assert "Traceback" not in out
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_job_that_hangs_is_stopped_at_its_time_limit(tmp_path: Path, workers: int) -> None:
+    df, out = faulty_sweep(tmp_path, "time.sleep(600)", "hydra.launcher.job_timeout_s=4",
+                           f"hydra.launcher.n_jobs={workers}")
+    assert df.loc[1, "status"] == "error"
+    assert "did not end within hydra.launcher.job_timeout_s=4 s" in df.loc[1, "error"]
+    assert (df.drop(index=1)["status"] != "error").all(), df["error"]
     assert "Traceback" not in out

@@ -31,17 +31,16 @@ available as ``hydra/launcher=joblib`` and the Ray launcher as ``hydra/launcher=
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import logging
 import multiprocessing
 import os
-import signal
 import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +52,9 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 from threadpoolctl import threadpool_limits
 
+from hydra_plugins.mpclab_launcher import recovery
 from hydra_plugins.mpclab_launcher.job import run_owned_job
+from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import cached
@@ -72,19 +73,15 @@ START_METHODS = ("fork", "forkserver", "spawn")
 _WORKER: dict[str, Any] = {}
 
 
-class WorkerDied(RuntimeError):
-    """The worker process running a job died (its error row's message)."""
-
-
 def _init_worker(
     hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
     singleton_state: dict[Any, Any] | None, threads: int, workers: int,
-    started: Any = None,
+    board_cells: Any = None,
 ) -> None:
     """Set up this process to run jobs; ``singleton_state``: Hydra's singletons (config
     store, runtime, resolvers) for a started worker, None where they are this process's own
-    (in the launching process, or forked from it); ``started``: the pool's shared array in
-    which a worker writes its pid at the slot of each job it starts."""
+    (in the launching process, or forked from it); ``board_cells``: the shared array of the
+    pool's :class:`~.recovery.JobBoard`, where a worker notes each job it starts and ends."""
     for var in THREAD_VARS:
         os.environ[var] = str(threads)
     os.environ[WORKERS_VAR] = str(workers)
@@ -93,24 +90,26 @@ def _init_worker(
     if singleton_state is not None:
         Singleton.set_state(singleton_state)  # and scans Hydra's plugins again
     hydra_context.config_loader = cached(hydra_context.config_loader)
+    board = None if board_cells is None else JobBoard(board_cells)
     _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function,
-                   started=started)
+                   board=board)
 
 
-def _init_pickled(blob: bytes, started: Any = None) -> None:
+def _init_pickled(blob: bytes, board_cells: Any = None) -> None:
     """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
     (Hydra's configs hold classes that the standard pickle cannot find by name); the shared
-    ``started`` array apart (it is passed on only when the process starts)."""
-    _init_worker(*cloudpickle.loads(blob), started=started)
+    ``board_cells`` apart (shared memory passes only as the process starts)."""
+    _init_worker(*cloudpickle.loads(blob), board_cells=board_cells)
 
 
 def _run_one(
     idx: int, overrides: Sequence[str], slot: int | None = None,
 ) -> tuple[JobReturn, dict[str, Any]]:
     """Compose and run job ``idx`` in this worker; the result without its configs. ``slot``:
-    the job's place in the pool's ``started`` array (where this worker's pid is written)."""
-    if slot is not None:
-        _WORKER["started"][slot] = os.getpid()
+    the job's place on the pool's board (None: no board)."""
+    board = _WORKER.get("board") if slot is not None else None
+    if board is not None:
+        board.start(slot)
     if _WORKER.setdefault("jobs", 0) == 1:
         # what the first job built stays: out of the garbage collector's way, so that
         # its full collections (tens of ms over the configs and solvers) do not recur
@@ -134,15 +133,9 @@ def _run_one(
     value = ret._return_value
     timing = value.get("timing", {}) if isinstance(value, dict) else {}
     info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, **timing}
+    if board is not None:
+        board.end(slot)
     return ret, info
-
-
-def _run_alone(send: Connection, initializer: Any, initargs: tuple[Any, ...], idx: int,
-               overrides: Sequence[str], slot: int) -> None:
-    """Run job ``idx`` in a process of its own (after a worker died) and send its result."""
-    initializer(*initargs)
-    send.send(_run_one(idx, overrides, slot))
-    send.close()
 
 
 class PoolLauncher(Launcher):
@@ -156,13 +149,17 @@ class PoolLauncher(Launcher):
         BLAS/OpenMP threads of each worker.
     start_method
         ``fork`` (workers inherit the imports), ``forkserver`` or ``spawn``.
+    job_timeout_s
+        Seconds a job may run before its worker is stopped and the job becomes an error row
+        (None: no limit). A limit needs worker processes: with it, ``n_jobs=1`` runs one
+        worker process instead of running the jobs in the launching process.
     """
 
     #: the sweeper leaves composing (and compose errors) to the workers
     composes_in_workers = True
 
     def __init__(self, n_jobs: int = -1, threads_per_worker: int = 1,
-                 start_method: str = "fork") -> None:
+                 start_method: str = "fork", job_timeout_s: float | None = None) -> None:
         if start_method not in START_METHODS:
             raise ValueError(f"hydra.launcher.start_method={start_method!r}: one of "
                              f"{', '.join(START_METHODS)}")
@@ -170,6 +167,10 @@ class PoolLauncher(Launcher):
             raise ValueError(f"hydra.launcher.threads_per_worker={threads_per_worker}: >= 1")
         if int(n_jobs) == 0 or int(n_jobs) < -1:
             raise ValueError(f"hydra.launcher.n_jobs={n_jobs}: -1 (every core) or >= 1")
+        self.timeout_s = None if job_timeout_s is None else _seconds(job_timeout_s)
+        if self.timeout_s is not None and not self.timeout_s > 0:
+            raise ValueError(f"hydra.launcher.job_timeout_s={job_timeout_s}: seconds > 0, or "
+                             "null for no limit")
         self.n_jobs = int(n_jobs)
         self.threads = int(threads_per_worker)
         self.start_method = start_method
@@ -196,18 +197,19 @@ class PoolLauncher(Launcher):
         sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         n = self.workers(len(job_overrides))
+        in_process = n == 1 and self.timeout_s is None  # a time limit needs a worker to stop
         log.info("mpclab pool launcher: %d jobs on %d warm worker%s (%s), sweep folder %s",
                  len(job_overrides), n, "" if n == 1 else "s",
-                 "in this process" if n == 1 else self.start_method, sweep_dir)
+                 "in this process" if in_process else self.start_method, sweep_dir)
         for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
             log.debug("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
         # a forked worker inherits Hydra's singletons, the launching process has them; only a
         # started worker needs a copy (Hydra's get_state deep-copies the config store)
-        started = n > 1 and self.start_method != "fork"
+        started = not in_process and self.start_method != "fork"
         init = (self.hydra_context, self.config, self.task_function,
                 Singleton.get_state() if started else None, self.threads, n)
         jobs = list(enumerate(job_overrides, start=initial_job_idx))
-        if n == 1:
+        if in_process:
             results = self._in_process(jobs, init)
         else:
             results = self._on_pool(jobs, init, n)
@@ -233,57 +235,74 @@ class PoolLauncher(Launcher):
     def _on_pool(self, jobs: list[tuple[int, Sequence[str]]], init: tuple[Any, ...],
                  n: int) -> dict[int, tuple[JobReturn, dict[str, Any]]]:
         ctx = multiprocessing.get_context(self.start_method)
-        # per job (its place in ``jobs``): the pid of the worker that started it, 0 before
-        started = ctx.RawArray("q", len(jobs))
+        board = JobBoard.new(ctx, len(jobs))
         if self.start_method == "fork":  # inherited, not pickled
-            initializer, initargs = _init_worker, (*init, started)
+            initializer, initargs = _init_worker, (*init, board.cells)
         else:
-            initializer, initargs = _init_pickled, (cloudpickle.dumps(init), started)
+            initializer, initargs = _init_pickled, (cloudpickle.dumps(init), board.cells)
         results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}
         todo = list(range(len(jobs)))
         while todo:
-            lost = self._pool_round(ctx, jobs, todo, initializer, initargs, n, results)
+            lost, stopped = self._pool_round(ctx, jobs, todo, initializer, initargs, n,
+                                             board, results)
             if not lost:
                 break
-            running = [slot for slot in lost if started[slot]]
-            if not running:  # no job started: the workers themselves cannot start
+            running = [slot for slot in lost if board.started(slot) and slot not in stopped]
+            for slot in stopped:  # ran out of time: not again
+                idx, overrides = jobs[slot]
+                results[idx] = self._error_row(idx, overrides, JobTimedOut(self.timeout_s or 0),
+                                               {"job": idx, "died": "timeout"})
+            if not running and not stopped:  # no job started: the workers cannot start
                 raise RuntimeError("mpclab pool launcher: the worker processes died before "
                                    "running any job (see the log above)")
-            log.error("a worker process died; the %d job(s) running then run again, each in a "
-                      "process of its own, then the other %d on new workers",
-                      len(running), len(lost) - len(running))
-            self._each_alone(ctx, initializer, initargs, jobs, running, n, results)
-            todo = [slot for slot in lost if not started[slot]]
+            if running:
+                log.error("a worker process died; the %d job(s) running then run again, each "
+                          "in a process of its own, then the %d not started on new workers",
+                          len(running), sum(not board.started(slot) for slot in lost))
+            alone = each_alone(ctx, _run_one, initializer, initargs, jobs, running, n,
+                               self.timeout_s)
+            for slot, out in alone.items():
+                idx, overrides = jobs[slot]
+                # by the module's name: Hydra's plugin scan runs this package's modules again
+                if isinstance(out, recovery.Lost):
+                    log.error("job %d (%s): %s", idx, " ".join(overrides), out.error)
+                    out = self._error_row(idx, overrides, out.error,
+                                          {"job": idx, "pid": out.pid, "died": out.how})
+                results[idx] = out
+            todo = [slot for slot in lost if not board.started(slot)]
         return results
 
     def _pool_round(
         self, ctx: Any, jobs: list[tuple[int, Sequence[str]]], todo: list[int],
-        initializer: Any, initargs: tuple[Any, ...], n: int,
+        initializer: Any, initargs: tuple[Any, ...], n: int, board: JobBoard,
         results: dict[int, tuple[JobReturn, dict[str, Any]]],
-    ) -> list[int]:
+    ) -> tuple[list[int], set[int]]:
         """Run the jobs at ``todo`` (places in ``jobs``) on a new pool of ``n`` workers into
-        ``results``; return the places of those lost because a worker died."""
+        ``results``; return the places of those lost because a worker died, and of those
+        whose worker was stopped for running out of time."""
         pool = ProcessPoolExecutor(max_workers=min(n, len(todo)), mp_context=ctx,
                                    initializer=initializer, initargs=initargs)
         lost: list[int] = []
+        watchdog = Watchdog(board, self.timeout_s) if self.timeout_s else None
         # what the workers inherit stays out of their garbage collector's way: a collection
         # in a forked worker would otherwise write to (and so copy) every inherited page
         gc.freeze()
         try:
-            futures: dict[Future, int] = {pool.submit(_run_one, *jobs[slot], slot): slot
-                                          for slot in todo}
-            # as_completed waits on every future once; wait() in a loop would register with
-            # every pending future again after each job (quadratic in the jobs)
-            for fut in as_completed(futures):
-                slot = futures[fut]
-                idx, overrides = jobs[slot]
-                try:
-                    results[idx] = fut.result()
-                except BrokenProcessPool:  # every job not yet done, once a worker died
-                    lost.append(slot)
-                except Exception as exc:  # noqa: BLE001  (e.g. a result that cannot pickle)
-                    log.error("job %d: its worker could not return it: %r", idx, exc)
-                    results[idx] = self._error_row(idx, overrides, exc, {"job": idx})
+            with watchdog if watchdog is not None else contextlib.nullcontext():
+                futures: dict[Future, int] = {pool.submit(_run_one, *jobs[slot], slot): slot
+                                              for slot in todo}
+                # as_completed waits on every future once; wait() in a loop would register
+                # with every pending future again after each job (quadratic in the jobs)
+                for fut in as_completed(futures):
+                    slot = futures[fut]
+                    idx, overrides = jobs[slot]
+                    try:
+                        results[idx] = fut.result()
+                    except BrokenProcessPool:  # every job not yet done, once a worker died
+                        lost.append(slot)
+                    except Exception as exc:  # noqa: BLE001  (e.g. a result that won't pickle)
+                        log.error("job %d: its worker could not return it: %r", idx, exc)
+                        results[idx] = self._error_row(idx, overrides, exc, {"job": idx})
         except BaseException:
             pool.shutdown(wait=True, cancel_futures=True)
             raise
@@ -291,44 +310,7 @@ class PoolLauncher(Launcher):
             gc.unfreeze()
         # every job is done: the workers exit while this process writes the sweep's tables
         pool.shutdown(wait=False)
-        return sorted(lost)
-
-    def _each_alone(
-        self, ctx: Any, initializer: Any, initargs: tuple[Any, ...],
-        jobs: list[tuple[int, Sequence[str]]], slots: list[int], n: int,
-        results: dict[int, tuple[JobReturn, dict[str, Any]]],
-    ) -> None:
-        """Run the jobs at ``slots``, each in a new process of its own (``n`` at a time), into
-        ``results``; a job whose process dies gets an error row that says how."""
-        pending = list(slots)
-        running: dict[Connection, tuple[int, Any]] = {}
-        while pending or running:
-            while pending and len(running) < n:
-                slot = pending.pop(0)
-                receive, send = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_run_alone, daemon=True,
-                                   args=(send, initializer, initargs, *jobs[slot], slot))
-                proc.start()
-                send.close()  # the child holds the only writing end: its death is an EOF
-                running[receive] = (slot, proc)
-            for receive in wait(list(running)):
-                slot, proc = running.pop(receive)
-                try:
-                    out = receive.recv()
-                except EOFError:  # it died without sending
-                    out = None
-                receive.close()
-                proc.join()
-                idx, overrides = jobs[slot]
-                if out is None:
-                    how = _death(proc.exitcode or 0)
-                    exc = WorkerDied(f"the worker process running this job died ({how}), also "
-                                     "when it ran alone: out of memory, or a crash in native "
-                                     "code?")
-                    log.error("job %d (%s): %s", idx, " ".join(overrides), exc)
-                    out = self._error_row(idx, overrides, exc,
-                                          {"job": idx, "pid": proc.pid, "died": how})
-                results[idx] = out
+        return sorted(lost), (watchdog.stopped & set(lost)) if watchdog else set()
 
     def _error_row(self, idx: int, overrides: Sequence[str], exc: Exception,
                    info: dict[str, Any]) -> tuple[JobReturn, dict[str, Any]]:
@@ -343,14 +325,12 @@ class PoolLauncher(Launcher):
         return ret, info
 
 
-def _death(exitcode: int) -> str:
-    """How a process ended, from its exit code (negative: the signal that killed it)."""
-    if exitcode >= 0:
-        return f"exit code {exitcode}"
+def _seconds(value: Any) -> float:
+    """``value`` as a float; NaN where it is not a number."""
     try:
-        return f"killed by {signal.Signals(-exitcode).name}"
-    except ValueError:
-        return f"killed by signal {-exitcode}"
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
 
 
 def _write_tasks(sweep_dir: Path, infos: list[dict[str, Any]]) -> None:

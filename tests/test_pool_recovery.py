@@ -1,0 +1,65 @@
+"""The pool launcher's recovery parts alone: the job board, the time-limit watchdog, and
+jobs run each in a process of their own (``hydra_plugins/mpclab_launcher/recovery.py``)."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import time
+
+from hydra_plugins.mpclab_launcher import recovery
+
+CTX = multiprocessing.get_context("fork")
+
+
+def _setup() -> None:
+    pass
+
+
+def _job(idx: int, overrides: list[str], slot: int) -> tuple[int, str]:
+    if "hang" in overrides:
+        time.sleep(600)
+    if "die" in overrides:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return idx, os.getpid()
+
+
+def test_each_alone_returns_results_and_says_how_a_job_was_lost() -> None:
+    jobs = [(10, ["ok"]), (11, ["die"]), (12, ["hang"]), (13, ["ok"])]
+    t0 = time.monotonic()
+    out = recovery.each_alone(CTX, _job, _setup, (), jobs, [0, 1, 2, 3], n=2, timeout_s=2.0)
+    assert time.monotonic() - t0 < 60  # the hanging one was stopped, not waited for
+    assert out[0][0] == 10 and out[3][0] == 13
+    assert out[0][1] != out[3][1] != os.getpid()  # each in a process of its own
+    died, hung = out[1], out[2]
+    assert isinstance(died, recovery.Lost) and isinstance(died.error, recovery.WorkerDied)
+    assert died.how == "killed by SIGKILL" and "SIGKILL" in str(died.error)
+    assert isinstance(hung, recovery.Lost) and isinstance(hung.error, recovery.JobTimedOut)
+    assert "job_timeout_s=2 s" in str(hung.error)
+
+
+def test_the_watchdog_stops_only_the_overdue_job() -> None:
+    board = recovery.JobBoard.new(CTX, 3)
+
+    def worker(slot: int, seconds: float) -> None:
+        board.start(slot)
+        time.sleep(seconds)
+        board.end(slot)
+
+    procs = [CTX.Process(target=worker, args=(slot, s)) for slot, s in
+             enumerate([600.0, 0.2, 600.0])]
+    with recovery.Watchdog(board, timeout_s=1.5) as dog:
+        for p in procs:
+            p.start()
+        procs[1].join()
+        board.end(2)  # slot 2 counts as ended: its process is not this watchdog's to stop
+        procs[0].join(timeout=60)
+    assert procs[0].exitcode == -signal.SIGKILL and procs[1].exitcode == 0
+    assert dog.stopped == {0} and board.started(1)
+    # a stopped job stays on the board as running (its worker could not say it ended); the
+    # pool's breakage tells the rest
+    assert board.overdue(1.5) == [(0, procs[0].pid)]
+    assert procs[2].is_alive()
+    procs[2].kill()
+    procs[2].join()
