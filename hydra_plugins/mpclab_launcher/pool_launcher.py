@@ -24,6 +24,8 @@ dominated a sweep of short jobs (issue 16). This launcher:
   process dies again becomes an error row that says so, and the other jobs run on a new
   pool. (With ``n_jobs=1`` the jobs run in the launching process, and such a
   crash ends the sweep: the rows written so far stay, and the same command resumes it.)
+  A job that runs longer than ``job_timeout_s`` has its worker stopped and becomes an error
+  row (:mod:`.recovery`).
 
 Selected by ``conf/hydra/launcher/local.yaml`` (the default); Hydra's joblib launcher stays
 available as ``hydra/launcher=joblib`` and the Ray launcher as ``hydra/launcher=ray_cluster``.
