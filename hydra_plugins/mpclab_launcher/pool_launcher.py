@@ -58,6 +58,7 @@ from hydra_plugins.mpclab_launcher import recovery
 from hydra_plugins.mpclab_launcher.job import run_owned_job
 from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
+from mpclab.errors import ConfigError, number
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import cached
 
@@ -169,10 +170,12 @@ class PoolLauncher(Launcher):
             raise ValueError(f"hydra.launcher.threads_per_worker={threads_per_worker}: >= 1")
         if int(n_jobs) == 0 or int(n_jobs) < -1:
             raise ValueError(f"hydra.launcher.n_jobs={n_jobs}: -1 (every core) or >= 1")
-        self.timeout_s = None if job_timeout_s is None else _seconds(job_timeout_s)
-        if self.timeout_s is not None and not self.timeout_s > 0:
-            raise ValueError(f"hydra.launcher.job_timeout_s={job_timeout_s}: seconds > 0, or "
-                             "null for no limit")
+        try:
+            self.timeout_s = None if job_timeout_s is None else number(
+                job_timeout_s, "hydra.launcher.job_timeout_s", above=0)
+        except ConfigError:
+            raise ConfigError("hydra.launcher.job_timeout_s: expected seconds > 0, or null for "
+                              f"no limit; got {job_timeout_s!r}") from None
         self.n_jobs = int(n_jobs)
         self.threads = int(threads_per_worker)
         self.start_method = start_method
@@ -325,14 +328,6 @@ class PoolLauncher(Launcher):
             job_cfg = None
         ret = record_job_error(self.hydra_context, self.config, idx, overrides, exc, job_cfg)
         return ret, info
-
-
-def _seconds(value: Any) -> float:
-    """``value`` as a float; NaN where it is not a number."""
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return float("nan")
 
 
 def _write_tasks(sweep_dir: Path, infos: list[dict[str, Any]]) -> None:

@@ -64,13 +64,13 @@ def interrupted_sweep() -> str | None:
     jobs are recorded, how to resume, how to tabulate); None outside a sweep."""
     if not _LAUNCHING:
         return None
-    sweep_dir = _LAUNCHING.pop()
+    sweep_dir = _LAUNCHING[-1]
     state = sweep_dir / STATE_DIR
     try:
         total = json.loads((state / SWEEP_FILE).read_text()).get("total")
-        done = sum(1 for line in (state / PROGRESS_FILE).read_text().splitlines() if line)
     except (OSError, ValueError):
-        total, done = None, 0
+        total = None
+    done = len(stream.read(state / PROGRESS_FILE))
     of = f" of {total}" if total else ""
     return (f"{done}{of} jobs of the sweep in {sweep_dir} are done and recorded; the same "
             "command resumes it (skipping them), and `python -m mpclab.tables "

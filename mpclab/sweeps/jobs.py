@@ -95,13 +95,13 @@ def error_summary(
     job's overrides do not choose), else by their Hydra group choice; so a failed job falls
     in its backend's group of the tables, not in one of its own.
     """
-    named = {**(choices or {}), **dict(o.lstrip("+").split("=", 1) for o in overrides if "=" in o)}
-    chosen = {o.lstrip("+").split("=", 1)[0] for o in overrides if "=" in o}
+    given = dict(o.lstrip("+").split("=", 1) for o in overrides if "=" in o)
+    named = {**(choices or {}), **given}
     name = cfg.get("name") if cfg is not None else None
     seed = cfg.get("seed") if cfg is not None else named.get("seed")
 
     def component(group: str) -> Any:
-        source = cfg if cfg is not None else (base if group not in chosen else None)
+        source = cfg if cfg is not None else (base if group not in given else None)
         found = component_name(source.get(group)) if source is not None else None
         return found or named.get(group)
 
