@@ -56,6 +56,11 @@ def test_two_backends_three_seeds(tmp_path: Path) -> None:
     rows = (tmp_path / ".mpclab" / "rows.jsonl").read_text().splitlines()
     assert len(rows) == 6
     assert (df["load.workers"] == 2).all() and (df["compute_cpu_total_s"] > 0).all()
+    # the launcher's record of each job in its worker: times within the job's, page faults
+    tasks = pd.read_json(tmp_path / ".mpclab" / "tasks.jsonl", lines=True)
+    assert sorted(tasks["job"]) == list(range(6)) and tasks["pid"].nunique() <= 2
+    assert (tasks["simulate_s"] > 0).all() and (tasks["task_s"] > tasks["simulate_s"]).all()
+    assert (tasks["cpu_s"] > 0).all() and (tasks["minor_faults"] >= 0).all()
     # each row is its job's summary.json, and its parameters are the job's overrides
     for row in df.itertuples():
         job = tmp_path / row.job

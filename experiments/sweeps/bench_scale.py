@@ -11,8 +11,9 @@ and reads what the sweep wrote about itself:
 * the whole command's wall time (Python start to exit), from here;
 * ``.mpclab/sweep.json``: when the sweep started, when its last job ended, how long the
   tables and figure took;
-* ``.mpclab/tasks.jsonl`` (mpclab's pool launcher): per job, its time in the worker and, of
-  that, its closed loop (``simulate``);
+* ``.mpclab/tasks.jsonl`` (mpclab's pool launcher): per job, its time in the worker, the
+  minor page faults of that time (a forked worker copies each inherited page it writes) and,
+  of that time, its closed loop (``simulate``);
 * every row in ``summary.parquet``.
 
 From these: the serial part (before the first job starts, and after the last one ends), the
@@ -97,6 +98,8 @@ def run(jobs: int, workers: int, extra: list[str], out: Path) -> dict:
                                      .mean()),
         "warm_outside_median_s": float(outside.median()),
         "warm_outside_mean_s": float(outside.mean()),
+        "first_job_faults": float(tasks[first]["minor_faults"].mean()),
+        "warm_faults_median": float(warm["minor_faults"].median()),
         "load_before": load, "load_after": os.getloadavg()[0],
     }
 
@@ -138,6 +141,10 @@ def main() -> None:
           f"{statistics.median(df['warm_outside_median_s']):.3f} s, mean "
           f"{statistics.median(df['warm_outside_mean_s']):.3f} s; a worker's first job "
           f"{df['first_job_outside_s'].median():.2f} s")
+    for w, g in df.groupby("workers"):
+        print(f"minor page faults, {w} worker(s): a worker's first job "
+              f"{g['first_job_faults'].median():.0f}, a warm job "
+              f"{g['warm_faults_median'].median():.0f} (medians)")
     one = df[df["workers"] == 1]
     if len(one):  # from the parts one worker measured: what does not shrink with workers
         fixed = float((one["before_first_job_s"] + one["after_last_job_s"]

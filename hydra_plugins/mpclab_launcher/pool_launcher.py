@@ -18,7 +18,8 @@ dominated a sweep of short jobs (issue 16). This launcher:
 * keeps what a worker built between jobs (``mpclab.warm``: the plant, objective and compiled
   controller of the same structure);
 * returns each job as soon as it ends and writes ``<sweep>/.mpclab/tasks.jsonl`` (per job:
-  worker, time in the worker, time in the closed loop);
+  worker, time in the worker and the CPU time and minor page faults of that time, time in
+  the closed loop);
 * goes on when a worker process dies (killed for memory, a crash in a solver's native code):
   the jobs that were running then are run again, each in a process of its own; a job whose
   process dies again becomes an error row that says so, and the other jobs run on a new
@@ -45,6 +46,11 @@ from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
+
+try:
+    import resource  # page faults per job (POSIX)
+except ImportError:  # pragma: no cover  (Windows)
+    resource = None  # type: ignore[assignment]
 
 import cloudpickle
 from hydra.core.singleton import Singleton
@@ -119,7 +125,7 @@ def _run_one(
         gc.collect()
         gc.freeze()
     _WORKER["jobs"] += 1
-    t0, start = time.perf_counter(), time.time()
+    t0, start, cpu0, faults0 = time.perf_counter(), time.time(), time.process_time(), _faults()
     ctx, config = _WORKER["hydra_context"], _WORKER["config"]
     try:
         sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
@@ -132,13 +138,21 @@ def _run_one(
             sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
             sweep_config.hydra.job.num = idx
         ret = run_owned_job(ctx, sweep_config, task_cfg, _WORKER["task_function"])
-    task_s = time.perf_counter() - t0
+    task_s, cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
     value = ret._return_value
     timing = value.get("timing", {}) if isinstance(value, dict) else {}
-    info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, **timing}
+    # minor faults: a forked worker copies each inherited page it writes (copy on write)
+    faults = None if faults0 is None else _faults() - faults0
+    info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, "cpu_s": cpu_s,
+            "minor_faults": faults, **timing}
     if board is not None:
         board.end(slot)
     return ret, info
+
+
+def _faults() -> int | None:
+    """Minor page faults of this process so far (None where the OS does not say)."""
+    return None if resource is None else resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 
 
 class PoolLauncher(Launcher):
