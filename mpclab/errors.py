@@ -1,6 +1,7 @@
 """Input checking that names what was given, what was expected and the valid choices.
 
-:func:`number` is the one check of a numeric option (finite, at or above a bound);
+:func:`number` is the one check of a numeric option (finite, at or above a bound), and
+:func:`whole_number` of a count;
 :func:`bad_input_message` turns any error that comes from bad input (mpclab's own
 :class:`ConfigError`, Hydra's composition and instantiation errors, OmegaConf's, a YAML
 syntax error, a file that cannot be read or written) into one short message, and returns None
@@ -75,6 +76,26 @@ def number(value: Any, key: str, *, above: float | None = None,
     return v
 
 
+def whole_number(value: Any, key: str, *, at_least: int,
+                 also: Mapping[int, str] | None = None) -> int:
+    """``value`` as an int ``>= at_least``, or one of the keys of ``also`` (a value with its
+    own meaning, e.g. ``{-1: "one worker per core"}``).
+
+    Raises :class:`ConfigError` naming ``key``, the value and what is valid: a string or a
+    float that is not a whole number, a bool, or a value out of range.
+    """
+    want = f"a whole number >= {at_least}" + "".join(
+        f", or {k} ({meaning})" for k, meaning in (also or {}).items())
+    try:
+        f = float(value)
+        v = int(f) if not isinstance(value, bool) and math.isfinite(f) and f == int(f) else None
+    except (TypeError, ValueError):
+        v = None
+    if v is None or not (v >= at_least or v in (also or {})):
+        raise ConfigError(f"{key}: expected {want}, got {value!r}")
+    return v
+
+
 def bad_input_message(exc: BaseException) -> str | None:
     """One short message for an error caused by bad input; None for any other error."""
     if isinstance(exc, InstantiationException):
@@ -133,7 +154,7 @@ def _instantiation_message(exc: InstantiationException) -> str | None:
         if not isinstance(cause, ValueError | TypeError):
             return None  # a bug in a constructor: its traceback says more than a message
         inner = str(cause) if isinstance(cause, ValueError) else f"{type(cause).__name__}: {cause}"
-    if full_key and not inner.startswith(_TOP_LEVEL_KEYS):  # say where, unless it does
+    if full_key and not inner.startswith((*_TOP_LEVEL_KEYS, full_key)):  # say where, unless it does
         inner = f"{full_key}: {inner}"
     return inner
 

@@ -111,9 +111,11 @@ def schema_from_init(
         typ = _conf_type(hints.get(p.name, Any))
         fields.append((p.name, *_conf_field(typ, p.default)))
     schema = dataclasses.make_dataclass(f"{cls.__name__}Conf", fields)
-    # importable by name, so that configs holding it pickle (sweep workers copy them)
+    # importable by name, so that configs holding it pickle (sweep workers copy them); a
+    # module not in sys.modules while it runs (Hydra's plugin scan) binds the name itself
     schema.__module__ = cls.__module__
-    setattr(sys.modules[cls.__module__], schema.__name__, schema)
+    if cls.__module__ in sys.modules:
+        setattr(sys.modules[cls.__module__], schema.__name__, schema)
     return schema
 
 

@@ -300,6 +300,32 @@ def test_an_output_folder_that_cannot_be_made_is_named(capsys, tmp_path: Path) -
     assert_one_clear_message(code, text, [str(out)], out)
 
 
+# ---- a sweep's launcher options: checked when composing (types, choices) or by the
+# launcher's constructor (ranges), before any job starts
+
+LAUNCHER_CASES = [
+    ("n_jobs=two", ["hydra.launcher.n_jobs", "two"]),
+    ("n_jobs=1.5", ["hydra.launcher.n_jobs", "1.5"]),
+    ("n_jobs=0", ["hydra.launcher.n_jobs: expected a whole number >= 1, or -1", "got 0"]),
+    ("threads_per_worker=0", ["hydra.launcher.threads_per_worker: expected", "got 0"]),
+    ("start_method=thread", ["hydra.launcher.start_method", "thread", "forkserver"]),
+    ("job_timeout_s=abc", ["hydra.launcher.job_timeout_s", "abc"]),
+    ("job_timeout_s=-1", ["hydra.launcher.job_timeout_s: expected seconds > 0", "got -1"]),
+    ("n_job=2", ["hydra.launcher.n_job"]),
+]
+
+
+@pytest.mark.parametrize("option, wanted", LAUNCHER_CASES, ids=[c[0] for c in LAUNCHER_CASES])
+def test_a_bad_launcher_option_is_one_message(option, wanted, capsys, tmp_path: Path) -> None:
+    code = cli(["-m", CAR, "+ci=smoke", "seed=0,1", f"hydra.sweep.dir={tmp_path}",
+                f"hydra.launcher.{option}"])
+    captured = capsys.readouterr()
+    text = captured.out + captured.err
+    assert_one_clear_message(code, text, wanted, tmp_path)
+    assert "hydra.launcher: hydra.launcher" not in text  # the key once
+    assert not list(tmp_path.glob("*/summary.json"))  # no job ran
+
+
 def test_hydra_full_error_shows_the_traceback(capsys, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setenv("HYDRA_FULL_ERROR", "1")
     with pytest.raises(ValueError, match="seed"):

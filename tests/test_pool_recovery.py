@@ -11,7 +11,7 @@ import time
 import pytest
 
 from hydra_plugins.mpclab_launcher import recovery
-from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher
+from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher, StartMethod
 from mpclab.errors import ConfigError
 
 CTX = multiprocessing.get_context("fork")
@@ -73,3 +73,20 @@ def test_a_bad_time_limit_is_one_message_naming_it() -> None:
             PoolLauncher(job_timeout_s=bad)
     assert PoolLauncher(job_timeout_s="2.5").timeout_s == pytest.approx(2.5)
     assert PoolLauncher().timeout_s is None
+
+
+def test_the_constructor_checks_counts_and_choices() -> None:
+    """What the launcher's schema cannot say (ranges; a launcher built in Python has no
+    schema): one ConfigError naming the key, the value and what is valid."""
+    for bad in (0, -2, 1.5, True, "two", None):
+        with pytest.raises(ConfigError, match=r"^hydra\.launcher\.n_jobs: expected a whole "
+                                              r"number >= 1, or -1 \(one worker per core\)"):
+            PoolLauncher(n_jobs=bad)
+    with pytest.raises(ConfigError, match=r"threads_per_worker: expected a whole number >= 1"):
+        PoolLauncher(threads_per_worker=0)
+    with pytest.raises(ConfigError, match=r"start_method: unknown choice 'thread'; valid: "
+                                          r"fork, forkserver, spawn"):
+        PoolLauncher(start_method="thread")
+    launcher = PoolLauncher(n_jobs="2", threads_per_worker=2.0, start_method=StartMethod.spawn)
+    assert (launcher.n_jobs, launcher.threads, launcher.start_method) == (2, 2, "spawn")
+    assert PoolLauncher(n_jobs=-1).n_jobs == -1

@@ -20,6 +20,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
 from conftest import CONF
+from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher
 from mpclab.registry import COMPONENTS, register_all
 
 register_all()
@@ -42,7 +43,7 @@ def options(cls: type, group: str) -> dict[str, Any]:
 
 
 COMPONENT_LIST = [(g, n, c) for g, comps in COMPONENTS.items() if g != "plant"
-                  for n, c in comps.items()]
+                  for n, c in comps.items()] + [("hydra/launcher", "pool", PoolLauncher)]
 
 
 @pytest.mark.parametrize("group, name, cls", COMPONENT_LIST,
@@ -92,7 +93,7 @@ def _base(doc: dict[str, Any], group: str, stem: str) -> dict[str, Any]:
 
 
 YAMLS = [(g, p.stem) for g in ("controller", "supervisor", "recorder", "sim", "scenario")
-         for p in sorted((CONF / g).glob("*.yaml"))]
+         for p in sorted((CONF / g).glob("*.yaml"))] + [("hydra/launcher", "local")]
 
 
 @pytest.mark.parametrize("group, stem", YAMLS, ids=[f"{g}/{s}" for g, s in YAMLS])

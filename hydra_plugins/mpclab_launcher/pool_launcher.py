@@ -44,6 +44,7 @@ import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +65,8 @@ from hydra_plugins.mpclab_launcher import recovery
 from hydra_plugins.mpclab_launcher.job import run_owned_job
 from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
-from mpclab.errors import ConfigError, number
+from mpclab.errors import ConfigError, number, parse_choice, whole_number
+from mpclab.registry import register_schema, schema_from_init
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import cached
 
@@ -76,7 +78,16 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
 #: how many workers the sweep runs at once, for the jobs' records (mpclab.sweeps.jobs)
 WORKERS_VAR = "MPCLAB_SWEEP_WORKERS"
 TASKS_FILE = "tasks.jsonl"
-START_METHODS = ("fork", "forkserver", "spawn")
+#: where the options are, for messages
+KEY = "hydra.launcher"
+
+
+class StartMethod(StrEnum):
+    """How worker processes start (:mod:`multiprocessing`'s start methods)."""
+
+    fork = "fork"  # a copy of the launching process: its imports, nothing to pickle
+    forkserver = "forkserver"
+    spawn = "spawn"
 
 #: what a worker needs to run a job, set once per worker by :func:`_init_worker`
 _WORKER: dict[str, Any] = {}
@@ -176,23 +187,18 @@ class PoolLauncher(Launcher):
     composes_in_workers = True
 
     def __init__(self, n_jobs: int = -1, threads_per_worker: int = 1,
-                 start_method: str = "fork", job_timeout_s: float | None = None) -> None:
-        if start_method not in START_METHODS:
-            raise ValueError(f"hydra.launcher.start_method={start_method!r}: one of "
-                             f"{', '.join(START_METHODS)}")
-        if int(threads_per_worker) < 1:
-            raise ValueError(f"hydra.launcher.threads_per_worker={threads_per_worker}: >= 1")
-        if int(n_jobs) == 0 or int(n_jobs) < -1:
-            raise ValueError(f"hydra.launcher.n_jobs={n_jobs}: -1 (every core) or >= 1")
+                 start_method: StartMethod | str = StartMethod.fork,
+                 job_timeout_s: float | None = None) -> None:
+        self.n_jobs = whole_number(n_jobs, f"{KEY}.n_jobs", at_least=1,
+                                   also={-1: "one worker per core"})
+        self.threads = whole_number(threads_per_worker, f"{KEY}.threads_per_worker", at_least=1)
+        self.start_method = str(parse_choice(StartMethod, start_method, f"{KEY}.start_method"))
         try:
             self.timeout_s = None if job_timeout_s is None else number(
-                job_timeout_s, "hydra.launcher.job_timeout_s", above=0)
+                job_timeout_s, f"{KEY}.job_timeout_s", above=0)
         except ConfigError:
-            raise ConfigError("hydra.launcher.job_timeout_s: expected seconds > 0, or null for "
-                              f"no limit; got {job_timeout_s!r}") from None
-        self.n_jobs = int(n_jobs)
-        self.threads = int(threads_per_worker)
-        self.start_method = start_method
+            raise ConfigError(f"{KEY}.job_timeout_s: expected seconds > 0, or null for "
+                              f"no limit, got {job_timeout_s!r}") from None
         self.config: DictConfig | None = None
         self.hydra_context: HydraContext | None = None
         self.task_function: TaskFunction | None = None
@@ -342,6 +348,13 @@ class PoolLauncher(Launcher):
             job_cfg = None
         ret = record_job_error(self.hydra_context, self.config, idx, overrides, exc, job_cfg)
         return ret, info
+
+
+#: the options' one schema, from the constructor: composing checks their types and choices
+#: (conf/hydra/launcher/local.yaml lists it first); bound here by name, as Hydra's plugin
+#: scan runs this module before it is in ``sys.modules``
+PoolLauncherConf = schema_from_init(PoolLauncher)
+register_schema("hydra/launcher", "pool", PoolLauncherConf)
 
 
 def _write_tasks(sweep_dir: Path, infos: list[dict[str, Any]]) -> None:
