@@ -3,6 +3,7 @@ jobs run each in a process of their own (``hydra_plugins/mpclab_launcher/recover
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
 import signal
@@ -10,7 +11,7 @@ import time
 
 import pytest
 
-from hydra_plugins.mpclab_launcher import recovery
+from hydra_plugins.mpclab_launcher import pool_launcher, recovery
 from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher, StartMethod
 from mpclab.errors import ConfigError
 
@@ -90,3 +91,15 @@ def test_the_constructor_checks_counts_and_choices() -> None:
     launcher = PoolLauncher(n_jobs="2", threads_per_worker=2.0, start_method=StartMethod.spawn)
     assert (launcher.n_jobs, launcher.threads, launcher.start_method) == (2, 2, "spawn")
     assert PoolLauncher(n_jobs=-1).n_jobs == -1
+
+
+def test_more_workers_than_cores_is_a_warning(monkeypatch, caplog) -> None:
+    monkeypatch.setattr(pool_launcher, "usable_cores", lambda: 2)
+    with caplog.at_level(logging.WARNING):
+        assert PoolLauncher(n_jobs=-1).workers(10) == 2
+        assert PoolLauncher(n_jobs=2).workers(10) == 2
+        assert PoolLauncher(n_jobs=5).workers(3) == 3  # no more workers than jobs
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings == ["3 workers on 2 core(s): jobs share cores, so their compute times are "
+                        "inflated (the tables mark such runs 'contended'); "
+                        "hydra.launcher.n_jobs=-1 runs one worker per core"]

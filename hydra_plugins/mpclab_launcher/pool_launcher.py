@@ -161,6 +161,12 @@ def _run_one(
     return ret, info
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity, where the OS says)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    return cores or os.cpu_count() or 1
+
+
 def _faults() -> int | None:
     """Minor page faults of this process so far (None where the OS does not say)."""
     return None if resource is None else resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -210,9 +216,14 @@ class PoolLauncher(Launcher):
         self.task_function = task_function
 
     def workers(self, n_tasks: int) -> int:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-        n = (cores or os.cpu_count() or 1) if self.n_jobs == -1 else self.n_jobs
-        return max(1, min(n, n_tasks))
+        """How many workers run ``n_tasks`` jobs; a warning where they outnumber the cores."""
+        cores = usable_cores()
+        n = max(1, min(cores if self.n_jobs == -1 else self.n_jobs, n_tasks))
+        if n > cores:
+            log.warning("%d workers on %d core(s): jobs share cores, so their compute times "
+                        "are inflated (the tables mark such runs 'contended'); "
+                        "hydra.launcher.n_jobs=-1 runs one worker per core", n, cores)
+        return n
 
     def launch(self, job_overrides: Sequence[Sequence[str]],
                initial_job_idx: int) -> Sequence[JobReturn]:
