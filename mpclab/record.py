@@ -85,7 +85,11 @@ def write_summary(out_dir: Path, summary: dict[str, Any]) -> None:
 
 
 def read_summary(run_dir: Path) -> dict[str, Any]:
-    return json.loads((Path(run_dir) / SUMMARY).read_text())
+    """A run's summary; ValueError for a file that is not one (torn, hand-made, no status)."""
+    summary = json.loads((Path(run_dir) / SUMMARY).read_text())
+    if not isinstance(summary, dict) or "status" not in summary:
+        raise ValueError("not a run summary (no 'status')")
+    return summary
 
 
 def read_steps(run_dir: Path) -> pd.DataFrame:

@@ -56,6 +56,11 @@ def test_an_error_row_is_run_again(tmp_path: Path) -> None:
 def test_a_torn_summary_is_not_complete(tmp_path: Path) -> None:
     (tmp_path / "summary.json").write_text('{"status": "arr')
     assert jobs.complete_summary(tmp_path, BASE) is None
+    # whole JSON, but not a run's summary: run again too
+    (tmp_path / "summary.json").write_text(json.dumps({"overrides": list(BASE)}))
+    assert jobs.complete_summary(tmp_path, BASE) is None
+    (tmp_path / "summary.json").write_text("[]")
+    assert jobs.complete_summary(tmp_path, BASE) is None
 
 
 def test_an_error_row_names_its_backend_as_a_finished_run_does() -> None:

@@ -106,6 +106,16 @@ def test_collect_mixed_sweeps_and_missing_files(outputs: Path) -> None:
     assert df["backend"].tolist() == df["controller"].fillna("?").tolist()
 
 
+def test_a_summary_that_is_not_a_run_record_is_an_incomplete_row(tmp_path: Path) -> None:
+    # valid JSON that mpclab did not write as a run's summary: a list, a dict with no status
+    for name, text in (("list", "[1, 2]"), ("other", '{"experiment": "zumo"}')):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(text)
+    df = tables.collect([tmp_path], root=tmp_path)
+    assert len(df) == 2 and (df["status"] == tables.INCOMPLETE).all()
+    assert df["error"].str.contains("not a run summary").all()
+
+
 def test_group_table_pools_step_times(outputs: Path) -> None:
     df = tables.collect([outputs / "multirun" / "a"])
     groups = tables.group_table(df).set_index("backend")

@@ -32,6 +32,8 @@ def outcomes(sweep: Path) -> pd.DataFrame:
             s = record.read_summary(d)
         except FileNotFoundError:
             s = {"status": "error", "error": "no summary.json"}
+        except ValueError as exc:
+            s = {"status": "error", "error": f"unreadable summary.json: {exc}"}
         rows.append({
             "seed": seed, "status": s.get("status"), "arrival_time_s": s.get("arrival_time_s"),
             "min_clearance_m": s.get("min_clearance_m"), "n_steps": s.get("n_steps"),
