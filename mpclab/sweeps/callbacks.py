@@ -146,7 +146,8 @@ class SweepCallback(Callback):
             (state / name).write_text("")
         self._progress.pop(state, None)
         _LAUNCHING[:] = [Path(config.hydra.sweep.dir)]
-        log.info("sweep of %s jobs into %s", total or "?", config.hydra.sweep.dir)
+        log.info("sweep of %s jobs into %s", "?" if total is None else total,
+                 config.hydra.sweep.dir)
 
     def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
         if config.hydra.mode != RunMode.MULTIRUN:
