@@ -89,6 +89,7 @@ class StartMethod(StrEnum):
     forkserver = "forkserver"
     spawn = "spawn"
 
+
 #: what a worker needs to run a job, set once per worker by :func:`_init_worker`
 _WORKER: dict[str, Any] = {}
 
