@@ -162,6 +162,17 @@ def test_command_refuses_an_empty_folder(tmp_path: Path) -> None:
         tables.collect([tmp_path / "nope"])
 
 
+def test_command_names_an_output_folder_it_cannot_make(outputs: Path, tmp_path: Path,
+                                                       capsys) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    with pytest.raises(SystemExit) as stop:
+        report.main([str(outputs / "multirun"), "--out", str(blocker / "tables")])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert str(blocker / "tables") in err and "Traceback" not in err
+
+
 def test_groups_split_every_swept_parameter_but_the_seed(tmp_path: Path) -> None:
     for num, (horizon, seed, arrival) in enumerate([(10, 0, 3.0), (10, 1, 3.4), (20, 0, 2.0),
                                                     (20, 1, 2.2)]):

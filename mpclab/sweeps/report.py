@@ -19,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from mpclab import tables
+from mpclab.errors import bad_input_message
 from mpclab.sweeps.figure import plot_arrival_vs_compute
 from mpclab.sweeps.robustness import plot_robustness, robustness_levels
 from mpclab.tables import XAxis
@@ -69,7 +70,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     for path in args.paths:
         if not path.exists():
             parser.error(f"no such folder: {path}")
-    report = write_report(args.paths, out, figure=not args.no_figure, x=XAxis(args.x))
+    try:
+        report = write_report(args.paths, out, figure=not args.no_figure, x=XAxis(args.x))
+    except OSError as exc:  # an --out that cannot be made or written, a folder not readable
+        parser.error(bad_input_message(exc) or str(exc))
     if report.runs.empty:
         parser.error(f"no run records below {', '.join(map(str, args.paths))}")
     print(tables.markdown_table(report.groups))
