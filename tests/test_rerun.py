@@ -212,6 +212,15 @@ def test_plant_without_heading_is_drawn_as_points(tmp_path):
     np.testing.assert_allclose(static(rows, ent.GOAL, "Points2D:positions"), [[0.0, 0.0]])
 
 
+def test_merge_with_nothing_to_merge_is_one_message(tmp_path, capsys):
+    for args in ([str(tmp_path / "nope")], [str(tmp_path)]):  # no such path; no run.rrd below
+        with pytest.raises(SystemExit) as stop:
+            merge_main(args)
+        assert stop.value.code == 2
+        err = capsys.readouterr().err
+        assert "error:" in err and str(tmp_path) in err and "Traceback" not in err
+
+
 def test_merge_puts_each_run_under_its_prefix(run_cfg, tmp_path):
     runs = {}
     for horizon in (5, 8):

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from mpclab.errors import bad_input_message
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.rerun import RRD
 
@@ -112,10 +113,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"merged file (default: {MERGED} in the first folder given, "
                              "or next to the first file's run folder)")
     args = parser.parse_args(argv)
-    rrds = find_recordings(args.paths)
-    out = args.output or _default_output(args.paths[0])
-    labels = run_labels(rrds)
-    merge(rrds, out, labels)
+    try:
+        rrds = find_recordings(args.paths)
+        out = args.output or _default_output(args.paths[0])
+        labels = run_labels(rrds)
+        merge(rrds, out, labels)
+    except OSError as exc:  # nothing to merge, an output that cannot be written
+        parser.error(bad_input_message(exc) or str(exc))
     print(f"merged {len(rrds)} recordings into {out}:")
     for label, rrd in zip(labels, rrds, strict=True):
         print(f"  /{label}  <- {rrd}")
