@@ -2,6 +2,7 @@
 
 :func:`number` is the one check of a numeric option (finite, at or above a bound), and
 :func:`whole_number` of a count;
+:func:`exit_on_bad_input` ends a tool's command line with that message;
 :func:`bad_input_message` turns any error that comes from bad input (mpclab's own
 :class:`ConfigError`, Hydra's composition and instantiation errors, OmegaConf's, a YAML
 syntax error, a file that cannot be read or written) into one short message, and returns None
@@ -10,11 +11,12 @@ for anything else (a bug, which deserves its traceback).
 
 from __future__ import annotations
 
+import argparse
 import difflib
 import math
 from collections.abc import Iterable, Mapping
 from enum import Enum
-from typing import Any
+from typing import Any, NoReturn
 
 import yaml
 from hydra.errors import CompactHydraException, InstantiationException, MissingConfigException
@@ -94,6 +96,18 @@ def whole_number(value: Any, key: str, *, at_least: int,
     if v is None or not (v >= at_least or v in (also or {})):
         raise ConfigError(f"{key}: expected {want}, got {value!r}")
     return v
+
+
+def exit_on_bad_input(parser: argparse.ArgumentParser, exc: Exception) -> NoReturn:
+    """For a tool's command line: ``parser.error`` (usage, one message, exit 2) when ``exc``
+    comes from bad input or a path (a file not found, a folder that cannot be written);
+    ``exc`` raised again otherwise (a bug keeps its traceback)."""
+    message = bad_input_message(exc)
+    if message is None and isinstance(exc, OSError):
+        message = str(exc)  # a path error mpclab raised itself, with its own message
+    if message is None:
+        raise exc
+    parser.error(message)
 
 
 def bad_input_message(exc: BaseException) -> str | None:

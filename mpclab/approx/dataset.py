@@ -19,6 +19,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
+from mpclab.errors import exit_on_bad_input
 from mpclab.recording.dataset import ROWS, config_hash
 
 
@@ -52,7 +53,8 @@ def merge(paths: list[Path], out: Path) -> MergeReport:
     tables, missing, hashes = [], [], set()
     dirs = run_dirs(paths)
     if not dirs:
-        raise FileNotFoundError(f"no run folders (with .hydra/config.yaml) below {paths}")
+        raise FileNotFoundError("no run folders (with .hydra/config.yaml) below "
+                                + ", ".join(map(str, paths)))
     for d in dirs:
         rows = d / ROWS
         if not rows.exists():
@@ -67,7 +69,8 @@ def merge(paths: list[Path], out: Path) -> MergeReport:
         hashes.update(t["config_hash"].unique().tolist())
         tables.append(t)
     if not tables:
-        raise FileNotFoundError(f"none of the {len(dirs)} runs below {paths} wrote {ROWS}")
+        raise FileNotFoundError(f"none of the {len(dirs)} runs below "
+                                f"{', '.join(map(str, paths))} wrote {ROWS}")
     data = pd.concat(tables, ignore_index=True)
     report = MergeReport(len(data), len(tables), missing, sorted(hashes))
     data.attrs["mpclab"] = json.dumps(report.__dict__)
@@ -84,11 +87,15 @@ def read(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
 
 
 def main(argv: list[str] | None = None) -> MergeReport:
-    ap = argparse.ArgumentParser(description="Merge a sweep's dataset rows into one file.")
+    ap = argparse.ArgumentParser(prog="python -m mpclab.approx.dataset",
+                                 description="Merge a sweep's dataset rows into one file.")
     ap.add_argument("paths", nargs="+", type=Path, help="sweep or outputs folders")
     ap.add_argument("-o", "--output", type=Path, required=True)
     args = ap.parse_args(argv)
-    report = merge(args.paths, args.output)
+    try:
+        report = merge(args.paths, args.output)
+    except OSError as exc:  # no such folder, no rows, an output that cannot be written
+        exit_on_bad_input(ap, exc)
     print(f"{args.output}: {report.rows} rows from {report.runs} runs; "
           f"configs {', '.join(report.config_hashes)}")
     if report.missing:

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mpclab.codegen.cwriter import c_array
+from mpclab.errors import exit_on_bad_input
 from mpclab.policy.mlp import MLP, Activation
 
 _C_ACT = {
@@ -170,13 +171,17 @@ def time_compiled(
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="Export NN weights (.npz) as a C source file.")
+    ap = argparse.ArgumentParser(prog="python -m mpclab.approx.export_c",
+                                 description="Export NN weights (.npz) as a C source file.")
     ap.add_argument("weights", type=Path)
     ap.add_argument("-o", "--output", type=Path, default=None)
     ap.add_argument("--name", default="mpclab_nn")
     args = ap.parse_args(argv)
     out = args.output or args.weights.with_suffix(".c")
-    out.write_text(to_c(MLP.load(args.weights), args.name))
+    try:
+        out.write_text(to_c(MLP.load(args.weights), args.name))
+    except (OSError, ValueError) as exc:  # no such file, not NN weights, an unwritable output
+        exit_on_bad_input(ap, exc)
     print(out)
 
 

@@ -37,6 +37,7 @@ from mpclab import record
 from mpclab.approx import dataset, evaluate
 from mpclab.approx.export_c import c_compiler, time_compiled, to_c
 from mpclab.approx.train import TrainConf, train
+from mpclab.errors import exit_on_bad_input
 from mpclab.experiment import build_run, compose
 from mpclab.policy.mlp import MLP
 from mpclab.record import jsonable
@@ -142,16 +143,21 @@ def fit(conf: PipelineConf, data: pd.DataFrame, meta: dict[str, Any]) -> tuple[M
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m mpclab.approx.pipeline",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--config", type=Path, default=ROOT / "conf/approx/zumo_nn.yaml")
     ap.add_argument("--stages", default=",".join(STAGES))
     ap.add_argument("overrides", nargs="*", help="KEY=VALUE, e.g. train.hidden=[64,64]")
     args = ap.parse_args(argv)
-    conf = load_conf(args.config, args.overrides)
+    try:  # a missing or broken --config, a typo'd or mistyped override
+        conf = load_conf(args.config, args.overrides)
+    except Exception as exc:  # noqa: BLE001  (bad input is one message; a bug re-raised)
+        exit_on_bad_input(ap, exc)
     stages = args.stages.split(",")
     unknown = set(stages) - set(STAGES)
     if unknown:
-        raise SystemExit(f"unknown stage(s) {sorted(unknown)}; stages: {', '.join(STAGES)}")
+        ap.error(f"--stages: unknown stage(s) {', '.join(sorted(unknown))}; stages: "
+                 f"{', '.join(STAGES)}")
     work, pub = ROOT / conf.work_dir, ROOT / conf.publish_dir
     work.mkdir(parents=True, exist_ok=True)
     pub.mkdir(parents=True, exist_ok=True)
@@ -164,6 +170,8 @@ def main(argv: list[str] | None = None) -> None:
         rep = dataset.merge([work / "data"], data_path)
         print(f"dataset: {rep.rows} rows from {rep.runs} runs, {len(rep.missing)} runs "
               f"without rows, configs {rep.config_hashes}", flush=True)
+    if not data_path.is_file():
+        ap.error(f"no dataset at {data_path}: run the data stage first (--stages data,...)")
     data, meta = dataset.read(data_path)
     data["source"] = "expert runs"
     history = []

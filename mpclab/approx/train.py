@@ -19,7 +19,10 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from omegaconf import OmegaConf
 
+from mpclab.approx import dataset
+from mpclab.errors import exit_on_bad_input
 from mpclab.policy.features import FeatureSet, features
 from mpclab.policy.mlp import MLP, Activation
 
@@ -119,20 +122,22 @@ def train(
 
 
 def main(argv: list[str] | None = None) -> TrainReport:
-    from omegaconf import OmegaConf
-
-    from mpclab.approx import dataset
-
-    ap = argparse.ArgumentParser(description="Train the NN on a merged dataset.")
+    ap = argparse.ArgumentParser(prog="python -m mpclab.approx.train",
+                                 description="Train the NN on a merged dataset.")
     ap.add_argument("data", type=Path)
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--bounds", type=float, nargs=2, default=(-10.0, 10.0),
                     help="symmetric input bounds of both wheels [rad/s]")
     ap.add_argument("overrides", nargs="*", help="train.KEY=VALUE")
-    args = ap.parse_args(argv)
+    args = ap.parse_intermixed_args(argv)  # overrides before or after -o
+    if not args.data.is_file():
+        ap.error(f"no dataset at {args.data} (python -m mpclab.approx.dataset merges one)")
     dotlist = [o.removeprefix("train.") for o in args.overrides]
-    conf = OmegaConf.merge(OmegaConf.structured(TrainConf), OmegaConf.from_dotlist(dotlist))
-    data, meta = dataset.read(args.data)
+    try:  # a typo'd or mistyped option, a dataset that is not there
+        conf = OmegaConf.merge(OmegaConf.structured(TrainConf), OmegaConf.from_dotlist(dotlist))
+        data, meta = dataset.read(args.data)
+    except Exception as exc:  # noqa: BLE001  (bad input is one message; a bug re-raised)
+        exit_on_bad_input(ap, exc)
     inputs = ["u1", "u2"]
     lb, ub = np.full(2, args.bounds[0]), np.full(2, args.bounds[1])
     mlp, report = train(data, OmegaConf.to_object(conf), inputs, lb, ub,

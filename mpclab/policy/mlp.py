@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from mpclab.errors import ConfigError
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -173,6 +175,6 @@ class MLP:
             # not an npz (a pickle, text), cut short, or an npz of something else
             why = f"missing array {exc}" if isinstance(exc, KeyError) else str(exc) or repr(exc)
             why = why.split(". If you trust")[0]  # numpy's advice to unpickle: not for weights
-            raise ValueError(
+            raise ConfigError(
                 f"{path} is not an MLP weights file (.npz from mpclab.approx.train): {why}"
             ) from None

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import bad_input_message
+from mpclab.errors import exit_on_bad_input
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.rerun import RRD
 
@@ -119,7 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         labels = run_labels(rrds)
         merge(rrds, out, labels)
     except OSError as exc:  # nothing to merge, an output that cannot be written
-        parser.error(bad_input_message(exc) or str(exc))
+        exit_on_bad_input(parser, exc)
     print(f"merged {len(rrds)} recordings into {out}:")
     for label, rrd in zip(labels, rrds, strict=True):
         print(f"  /{label}  <- {rrd}")

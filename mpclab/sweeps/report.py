@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from mpclab import tables
-from mpclab.errors import bad_input_message
+from mpclab.errors import exit_on_bad_input
 from mpclab.sweeps.figure import plot_arrival_vs_compute
 from mpclab.sweeps.robustness import plot_robustness, robustness_levels
 from mpclab.tables import XAxis
@@ -73,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         report = write_report(args.paths, out, figure=not args.no_figure, x=XAxis(args.x))
     except OSError as exc:  # an --out that cannot be made or written, a folder not readable
-        parser.error(bad_input_message(exc) or str(exc))
+        exit_on_bad_input(parser, exc)
     if report.runs.empty:
         parser.error(f"no run records below {', '.join(map(str, args.paths))}")
     print(tables.markdown_table(report.groups))
