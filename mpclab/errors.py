@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import difflib
 import math
+import os
 from collections.abc import Iterable, Mapping
 from enum import Enum
 from typing import Any, NoReturn
@@ -133,6 +134,9 @@ def bad_input_message(exc: BaseException) -> str | None:
         return _trim(str(exc))
     if isinstance(exc, yaml.YAMLError):
         return yaml_message(exc)
+    if (isinstance(exc, FileExistsError) and exc.filename is not None
+            and os.path.exists(exc.filename) and not os.path.isdir(exc.filename)):
+        return f"not a folder (a file is there): {exc.filename}"  # making an output folder
     if isinstance(exc, OSError) and exc.filename is not None:
         return f"{exc.strerror or exc}: {exc.filename}"
     return None

@@ -326,6 +326,14 @@ def test_a_bad_launcher_option_is_one_message(option, wanted, capsys, tmp_path: 
     assert not list(tmp_path.glob("*/summary.json"))  # no job ran
 
 
+def test_an_output_folder_that_is_a_file_is_named(capsys, tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    code, text = run_cli(capsys, blocker, [CAR])
+    assert_one_clear_message(code, text, [f"not a folder (a file is there): {blocker}"],
+                             tmp_path)
+
+
 def test_hydra_full_error_shows_the_traceback(capsys, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setenv("HYDRA_FULL_ERROR", "1")
     with pytest.raises(ValueError, match="seed"):
