@@ -69,14 +69,13 @@ from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import cached
+from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
 
 log = logging.getLogger(__name__)
 
 #: environment variables that size thread pools of BLAS, OpenMP and friends
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
-#: how many workers the sweep runs at once, for the jobs' records (mpclab.sweeps.jobs)
-WORKERS_VAR = "MPCLAB_SWEEP_WORKERS"
 TASKS_FILE = "tasks.jsonl"
 #: where the options are, for messages
 KEY = "hydra.launcher"
@@ -160,12 +159,6 @@ def _run_one(
     if board is not None:
         board.end(slot)
     return ret, info
-
-
-def usable_cores() -> int:
-    """The cores this process may run on (its CPU affinity, where the OS says)."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-    return cores or os.cpu_count() or 1
 
 
 def _faults() -> int | None:

@@ -39,6 +39,13 @@ def job_overrides(overrides: Sequence[str]) -> list[str]:
     return [o for o in overrides if override_key(o) not in IGNORED_KEYS]
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity, where the OS says): what a
+    sweep's workers share, recorded with each job and checked by the launcher."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    return cores or os.cpu_count() or 1
+
+
 def complete_summary(out_dir: Path, overrides: Sequence[str]) -> dict[str, Any] | None:
     """The summary of a complete run record for ``overrides`` in ``out_dir``, else None."""
     path = Path(out_dir) / record.SUMMARY
@@ -165,7 +172,7 @@ def run_job(
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         record.write_summary(out_dir, summary)  # an error row has no steps to write
         return summary
-    load = {"workers": workers, "cores": os.cpu_count(), "load_1m_start": load_start,
+    load = {"workers": workers, "cores": usable_cores(), "load_1m_start": load_start,
             "load_1m_end": os.getloadavg()[0]}
     summary = {**summary, "load": load, "overrides": overrides}
     record.write_summary(out_dir, summary)  # again, now naming its overrides (for resume)
