@@ -3,6 +3,7 @@ or a missing path is one message with the usage, exit 2, no traceback."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -11,42 +12,35 @@ from mpclab.approx import dataset, export_c, pipeline, train
 from mpclab.recording import merge
 from mpclab.sweeps import report
 
-
-def _cases(tmp: Path) -> list[tuple[object, list[str], list[str]]]:
-    """(main, arguments, strings the message must hold)."""
-    (tmp / "empty").mkdir()
-    (tmp / "not_weights.npz").write_text("text, not an npz")
-    (tmp / "a_file").write_text("not a folder")
-    nope = str(tmp / "nope")
-    return [
-        (report.main, [nope], ["no such folder", nope]),
-        (report.main, [str(tmp / "empty")], ["no run records"]),
-        (merge.main, [nope], ["no recording or folder", nope]),
-        (merge.main, [str(tmp / "empty")], ["no run.rrd found"]),
-        (dataset.main, [nope, "-o", str(tmp / "d.parquet")], ["no such folder", nope]),
-        (dataset.main, [str(tmp / "empty"), "-o", str(tmp / "d.parquet")], ["no run folders"]),
-        (train.main, [str(tmp / "d.parquet"), "-o", str(tmp / "w.npz")], ["no dataset at"]),
-        (export_c.main, [str(tmp / "w.npz")], ["no NN weights at"]),
-        (export_c.main, [str(tmp / "not_weights.npz")], ["is not an MLP weights file"]),
-        (pipeline.main, ["--config", str(tmp / "nope.yaml")], ["nope.yaml"]),
-        (pipeline.main, ["train.hiden=3"], ["train.hiden"]),
-        (pipeline.main, ["train.max_iter=many"], ["train.max_iter", "many"]),
-        (pipeline.main, ["--stages", "data,trian"], ["trian", "dagger"]),
-    ]
+#: (command, its arguments, strings the message must hold); ``{tmp}``: a folder holding
+#: ``empty/`` (a folder with nothing in it) and ``not_weights.npz`` (text)
+CASES: list[tuple[Callable[[list[str]], object], list[str], list[str]]] = [
+    (report.main, ["{tmp}/nope"], ["no such folder", "{tmp}/nope"]),
+    (report.main, ["{tmp}/empty"], ["no run records"]),
+    (merge.main, ["{tmp}/nope"], ["no recording or folder", "{tmp}/nope"]),
+    (merge.main, ["{tmp}/empty"], ["no run.rrd found"]),
+    (dataset.main, ["{tmp}/nope", "-o", "{tmp}/d.parquet"], ["no such folder", "{tmp}/nope"]),
+    (dataset.main, ["{tmp}/empty", "-o", "{tmp}/d.parquet"], ["no run folders"]),
+    (train.main, ["{tmp}/d.parquet", "-o", "{tmp}/w.npz"], ["no dataset at"]),
+    (export_c.main, ["{tmp}/w.npz"], ["no NN weights at"]),
+    (export_c.main, ["{tmp}/not_weights.npz"], ["is not an MLP weights file"]),
+    (pipeline.main, ["--config", "{tmp}/nope.yaml"], ["nope.yaml"]),
+    (pipeline.main, ["train.hiden=3"], ["train.hiden"]),
+    (pipeline.main, ["train.max_iter=many"], ["train.max_iter", "many"]),
+    (pipeline.main, ["--stages", "data,trian"], ["trian", "dagger"]),
+]
 
 
-N_CASES = 13
-
-
-@pytest.mark.parametrize("case", range(N_CASES))
-def test_a_tool_refuses_bad_input_with_one_message(case: int, tmp_path: Path, capsys) -> None:
-    cases = _cases(tmp_path)
-    assert len(cases) == N_CASES
-    main, args, wanted = cases[case]
+@pytest.mark.parametrize(("main", "args", "wanted"), CASES,
+                         ids=[f"{m.__module__}:{' '.join(a)}" for m, a, _ in CASES])
+def test_a_tool_refuses_bad_input_with_one_message(main, args, wanted, tmp_path: Path,
+                                                   capsys) -> None:
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "not_weights.npz").write_text("text, not an npz")
     with pytest.raises(SystemExit) as stop:
-        main(args)
+        main([a.format(tmp=tmp_path) for a in args])
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and "error: " in err, err
     for w in wanted:
-        assert w in err, f"{w!r} not in:\n{err}"
+        assert w.format(tmp=tmp_path) in err, f"{w!r} not in:\n{err}"
