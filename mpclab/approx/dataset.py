@@ -82,6 +82,9 @@ def merge(paths: list[Path], out: Path) -> MergeReport:
 
 def read(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A merged dataset and its metadata (runs, missing runs, config hashes)."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"no dataset at {path} (python -m mpclab.approx.dataset merges "
+                                "one; the pipeline's data stage makes it)")
     data = pd.read_parquet(path)
     return data, json.loads(data.attrs.get("mpclab", "{}"))
 

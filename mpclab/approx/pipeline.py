@@ -170,9 +170,10 @@ def main(argv: list[str] | None = None) -> None:
         rep = dataset.merge([work / "data"], data_path)
         print(f"dataset: {rep.rows} rows from {rep.runs} runs, {len(rep.missing)} runs "
               f"without rows, configs {rep.config_hashes}", flush=True)
-    if not data_path.is_file():
-        ap.error(f"no dataset at {data_path}: run the data stage first (--stages data,...)")
-    data, meta = dataset.read(data_path)
+    try:
+        data, meta = dataset.read(data_path)
+    except FileNotFoundError as exc:  # stages after data, without it
+        exit_on_bad_input(ap, exc)
     data["source"] = "expert runs"
     history = []
     weights = work / "weights_round0.npz"

@@ -130,10 +130,8 @@ def main(argv: list[str] | None = None) -> TrainReport:
                     help="symmetric input bounds of both wheels [rad/s]")
     ap.add_argument("overrides", nargs="*", help="train.KEY=VALUE")
     args = ap.parse_intermixed_args(argv)  # overrides before or after -o
-    if not args.data.is_file():
-        ap.error(f"no dataset at {args.data} (python -m mpclab.approx.dataset merges one)")
     dotlist = [o.removeprefix("train.") for o in args.overrides]
-    try:  # a typo'd or mistyped option, a dataset that is not there
+    try:  # a typo'd or mistyped option, no dataset or not one
         conf = OmegaConf.merge(OmegaConf.structured(TrainConf), OmegaConf.from_dotlist(dotlist))
         data, meta = dataset.read(args.data)
     except Exception as exc:  # noqa: BLE001  (bad input is one message; a bug re-raised)
