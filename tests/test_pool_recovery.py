@@ -56,6 +56,9 @@ def test_the_watchdog_stops_only_the_overdue_job() -> None:
         for p in procs:
             p.start()
         procs[1].join()
+        deadline = time.time() + 60
+        while not board.started(2) and time.time() < deadline:  # its own start comes first
+            time.sleep(0.01)
         board.end(2)  # slot 2 counts as ended: its process is not this watchdog's to stop
         procs[0].join(timeout=60)
     assert procs[0].exitcode == -signal.SIGKILL and procs[1].exitcode == 0
