@@ -16,11 +16,13 @@ and reads what the sweep wrote about itself:
   of that time, its closed loop (``simulate``);
 * every row in ``summary.parquet``.
 
-From these: the serial part (before the first job starts, and after the last one ends), the
-per-job time outside the closed loop on a warm worker (every job but each worker's first),
-the speed-up of 2 workers, an Amdahl fit ``T(W) = S + P / W`` and its projection to 16 and
-64 cores, and the bound ``sum(closed loop) / W * 1.3``. ``--wait-quiet`` first waits (up to
-10 minutes) until the 1-minute load average is below 1.
+From these: the serial part (before the first job starts, and after the last one ends), how
+much longer the jobs themselves took two at a time (the host of a virtual machine may give
+two busy cores less than twice one), the per-job time outside the closed loop on a warm
+worker (every job but each worker's first), the speed-up of 2 workers, an Amdahl fit
+``T(W) = S + P / W`` and its projection to 16 and 64 cores, and the bound
+``sum(closed loop) / W * 1.3``. ``--wait-quiet`` first waits (up to 10 minutes) until the
+1-minute load average is below 1.
 
 Before the sweeps, mpclab's own modules are compiled to bytecode (``compileall``), as Python
 does on its first import anywhere bytecode is written: a machine that sets
@@ -154,6 +156,10 @@ def main() -> None:
         print(f"from the parts (1 worker): fixed {fixed:.2f} s (before the first job, after the "
               f"last, a worker's first set-up), jobs {work:.2f} s; projected speed-up: "
               + ", ".join(f"{c} cores {t1 / (fixed + work / c):.1f}" for c in (2, 16, 64)))
+    per_job = df.groupby("workers")["task_sum_s"].median()
+    if {1, 2} <= set(per_job.index):  # the cores' share: 1.0 when two jobs run as one alone
+        print(f"the jobs' own time (their sum in the workers), 2 workers against 1: "
+              f"{per_job[2] / per_job[1]:.3f} (1.0: two jobs at once run as fast as one alone)")
     med = df.groupby("workers")["wall_s"].median()
     if not {1, 2} <= set(med.index):
         return
