@@ -28,8 +28,7 @@ from mpclab.origin import RunOrigin
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
-from mpclab.sweeps.callbacks import forget_sweep, interrupted_sweep
-from mpclab.sweeps.compose import composing_once
+from mpclab.sweeps.callbacks import failed_sweep, forget_sweep, interrupted_sweep
 
 register_all()  # every component's schema must be in the ConfigStore before composing
 # Ray (hydra/launcher=ray_cluster) would otherwise re-create a driver started by `uv run` in
@@ -52,6 +51,10 @@ class RunFailed(Exception):
         super().__init__(f"run ended with status {status}" + (f": {error}" if error else "")
                          + f"; run record: {out_dir}")
         self.status = status
+
+
+class SweepFailed(Exception):
+    """A sweep none of whose jobs has a result (each job's row says why)."""
 
 
 class _TaskError(BaseException):
@@ -126,8 +129,7 @@ def cli(argv: Sequence[str] | None = None) -> int:
     os.environ[_FULL_ERROR] = "1"
     error: Exception | None = None
     try:
-        with composing_once():  # the launching process composes the command's config once
-            main()
+        main()
     except _TaskError as wrapped:
         error = wrapped.error
     except KeyboardInterrupt as exc:
@@ -153,13 +155,15 @@ def cli(argv: Sequence[str] | None = None) -> int:
             os.environ.pop(_FULL_ERROR, None)
         else:
             os.environ[_FULL_ERROR] = user_full_error
+    if error is None and (message := failed_sweep()) is not None:
+        error = SweepFailed(message)
     # outside the handlers, so that a re-raised error is not shown as raised in one
     return 0 if error is None else report(error, user_full_error is not None)
 
 
 def report(exc: Exception, full_error: bool) -> int:
     """Write ``exc`` for the user: one message for bad input, a traceback for a bug."""
-    if isinstance(exc, RunFailed):
+    if isinstance(exc, RunFailed | SweepFailed):
         sys.stderr.write(f"mpclab: {exc}\n")
         return EXIT_RUN_FAILED
     if full_error:

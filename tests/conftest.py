@@ -6,8 +6,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import pytest
-from hydra._internal.config_loader_impl import ConfigLoaderImpl
-from hydra.types import RunMode
 
 from mpclab.experiment import CONF_DIR as CONF
 from mpclab.experiment import compose as compose_cfg  # the config the app runs with
@@ -31,17 +29,3 @@ def run_cfg(tmp_path: Path) -> Callable[..., tuple[object, Path]]:
         return run_experiment(cfg, out), out
 
     return _run
-
-
-@pytest.fixture
-def hydra_calls(monkeypatch: pytest.MonkeyPatch) -> list[RunMode]:
-    """The run mode of every composition Hydra itself makes (``_load_configuration_impl``)."""
-    calls: list[RunMode] = []
-    impl = ConfigLoaderImpl._load_configuration_impl
-
-    def counted(self, **kw):
-        calls.append(kw["run_mode"])
-        return impl(self, **kw)
-
-    monkeypatch.setattr(ConfigLoaderImpl, "_load_configuration_impl", counted)
-    return calls

@@ -1,15 +1,13 @@
-"""Warm sweep workers: cached compose equals Hydra's, reused components repeat a fresh run.
+"""Warm sweep workers: a shared tree gives Hydra's config, reused components repeat a run.
 
-A sweep worker composes each job from a cached defaults tree (mpclab.sweeps.compose) and
-reuses the plant, objective and controller of an earlier job of the same structure
+A sweep worker composes each job from a tree shared by the jobs that differ only in values
+(mpclab.sweeps.compose) and reuses the plant, objective and controller of an earlier job of the same structure
 (mpclab.warm). Both must be invisible in the results: the config is Hydra's own, and a run
 on a reused controller is the run a freshly built one makes.
 """
 
 from __future__ import annotations
 
-import copy
-from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -19,14 +17,13 @@ from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import ConfigCompositionException
 from hydra.types import RunMode
-from omegaconf import OmegaConf, open_dict, read_write
+from omegaconf import OmegaConf
 
 from conftest import CONF
 from mpclab import record
 from mpclab.experiment import compose, run_experiment
 from mpclab.registry import register_all
-from mpclab.sweeps import compose as compose_module
-from mpclab.sweeps.compose import CachedComposeLoader, composing_once
+from mpclab.sweeps.compose import JobComposer
 from mpclab.warm import ComponentCache, structure_key
 
 JOBS = [
@@ -45,98 +42,37 @@ def loader():
         yield GlobalHydra.instance().config_loader()
 
 
-def test_cached_compose_is_hydras_compose(loader) -> None:
+def test_a_shared_tree_gives_hydras_job_config(loader) -> None:
     master = loader.load_configuration(
         "config", ["+experiment=car_cvxpy", "hydra.launcher.n_jobs=2"], RunMode.MULTIRUN)
-    cached = CachedComposeLoader(loader)
-    for overrides in [*JOBS, *JOBS]:  # the second round comes from the cache
+    composer = JobComposer(loader, master)
+    for overrides in [*JOBS, *JOBS]:  # the second round from the kept trees
         want = loader.load_sweep_config(master, list(overrides))
-        got = cached.load_sweep_config(master, list(overrides))
+        got = composer.job_config(overrides)
         assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want), overrides
         task = [k for k in want if k != "hydra"]
         assert (OmegaConf.to_container(OmegaConf.masked_copy(got, task), resolve=True)
                 == OmegaConf.to_container(OmegaConf.masked_copy(want, task), resolve=True))
-        # the task's copy: Hydra's run_job deletes ``hydra`` from a deep copy
-        want_task = copy.deepcopy(want)
-        with read_write(want_task), open_dict(want_task):
-            del want_task["hydra"]
-        got_task = cached.load_task_config(master, list(overrides))
-        assert OmegaConf.to_yaml(got_task) == OmegaConf.to_yaml(want_task), overrides
-        assert got_task._get_flag("struct") == want_task._get_flag("struct")
+        assert got._get_flag("struct") == want._get_flag("struct")
     # each job gets its own copy
-    a = cached.load_sweep_config(master, JOBS[0])
+    a = composer.job_config(JOBS[0])
     a.seed = 99
-    assert cached.load_sweep_config(master, JOBS[0]).seed == 3
+    assert composer.job_config(JOBS[0]).seed == 3
 
 
 @pytest.mark.parametrize("bad", ["controller.horizon=ten", "controller.nope=1",
-                                 "scenario=nowhere", "+seed=1"])
-def test_cached_compose_fails_as_hydra_does(loader, bad: str) -> None:
+                                 "scenario=nowhere", "+seed=1", "~nope", "~seed=5",
+                                 "nope@pkg=a"])
+def test_a_shared_tree_fails_as_hydra_does(loader, bad: str) -> None:
     master = loader.load_configuration("config", ["+experiment=car_cvxpy"], RunMode.MULTIRUN)
-    cached = CachedComposeLoader(loader)
-    cached.load_sweep_config(master, ["+experiment=car_cvxpy", "seed=0"])  # warm the cache
+    composer = JobComposer(loader, master)
+    composer.job_config(["+experiment=car_cvxpy", "seed=0"])  # a kept tree
     overrides = ["+experiment=car_cvxpy", bad]
     with pytest.raises(ConfigCompositionException) as want:
         loader.load_sweep_config(master, overrides)
     with pytest.raises(ConfigCompositionException) as got:
-        cached.load_sweep_config(master, overrides)
+        composer.job_config(overrides)
     assert str(got.value) == str(want.value)
-
-
-COMMANDS = [
-    (["+experiment=zumo_bug2", "seed=range(0,4)", "controller.horizon=8,10",
-      "hydra.launcher.n_jobs=2", "hydra.mode=MULTIRUN"], RunMode.MULTIRUN),
-    (["+experiment=car_cvxpy", "controller=casadi,cvxpy", "seed=1"], RunMode.MULTIRUN),
-    (["hydra/launcher=joblib", "+experiment=car_cvxpy", "+tag=a", "figures.enabled=false"],
-     RunMode.MULTIRUN),
-    (["+experiment=car_cvxpy", "seed=2", "~figures"], RunMode.RUN),
-    (["+experiment=zumo_bug2", "scenario=zumo_random", "hydra.job.chdir=false"], RunMode.RUN),
-]
-
-
-@pytest.mark.parametrize(("overrides", "mode"), COMMANDS)
-def test_a_cached_command_config_is_hydras(loader, monkeypatch, overrides, mode) -> None:
-    monkeypatch.setattr(compose_module, "_BASES", OrderedDict())
-    want = loader.load_configuration("config", overrides, mode)
-    cached = CachedComposeLoader(loader)
-    for _ in range(2):  # composed, then from the cache
-        got = cached.load_configuration("config", overrides, mode)
-        assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want)
-
-
-def test_a_multirun_command_and_its_jobs_share_one_tree(loader, monkeypatch, tmp_path,
-                                                        request) -> None:
-    monkeypatch.setattr(compose_module, "_BASES", OrderedDict())
-    monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path))  # no tree stored by an earlier command
-    hydra = GlobalHydra.instance().hydra
-    original = hydra.config_loader
-    sweep = ["+experiment=zumo_bug2", "seed=range(0,4)", "controller.horizon=8,10",
-             "hydra.launcher.n_jobs=2"]
-    want = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
-    job = ["+experiment=zumo_bug2", "seed=3", "controller.horizon=10"]
-    want_job = original.load_sweep_config(want, job)
-    calls = request.getfixturevalue("hydra_calls")  # from here on
-    compose_module._BASES[("stale",)] = (b"", b"")  # a tree kept by an earlier command
-    with composing_once():
-        assert ("stale",) not in compose_module._BASES  # each command composes anew
-        assert hydra.get_mode("config", sweep) is None  # as Hydra's: no config sets the mode
-        got = hydra.compose_config("config", [*sweep, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
-        assert calls == [RunMode.RUN]  # the tree of the group overrides, once
-        assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want)
-        assert (OmegaConf.to_yaml(hydra.config_loader.load_sweep_config(got, job))
-                == OmegaConf.to_yaml(want_job))
-        assert calls == [RunMode.RUN]  # a job of the sweep: the same tree
-        # a single run: its tree once, for both of Hydra's compositions
-        hydra.get_mode("config", ["+experiment=car_cvxpy"])
-        hydra.compose_config("config", ["+experiment=car_cvxpy"], RunMode.RUN)
-        assert calls == [RunMode.RUN] * 2
-        # the sweep overrides are still checked, as Hydra checks them
-        bad = ["+experiment=car_cvxpy", "hydra.run.dir=a,b"]
-        hydra.get_mode("config", bad)
-        with pytest.raises(ConfigCompositionException, match="hydra.run.dir"):
-            hydra.compose_config("config", [*bad, "hydra.mode=MULTIRUN"], RunMode.MULTIRUN)
-    assert "get_mode" not in vars(hydra) and hydra.config_loader is original
-    assert not compose_module._BASES  # nothing kept for the next command
 
 
 def _steps(run_dir: Path) -> pd.DataFrame:

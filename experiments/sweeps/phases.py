@@ -5,11 +5,11 @@
 Runs the Zumo sweep job (``+experiment=zumo_bug2 scenario=zumo_random seed=K
 recorder=none figures.enabled=false``) for K = 0, 1, ... twice each, alternating:
 
-* *cold*, as every job ran before issue 16 (and as Hydra's joblib launcher still composes
+* *cold*, as Hydra's joblib launcher still composes
   it): Hydra composes the config from its defaults tree, and plant, objective and controller
   are built anew;
-* *warm*, as a job runs on a warm worker of mpclab's pool launcher: the config from the cached
-  defaults tree (:mod:`mpclab.sweeps.compose`), the components reused (:mod:`mpclab.warm`).
+* *warm*, as a job runs on a warm worker of mpclab's pool launcher: the config from the tree
+  its jobs share (:mod:`mpclab.sweeps.compose`), the components reused (:mod:`mpclab.warm`).
 
 Prints the median seconds of each phase (compose, build, closed loop, write) and the ratio.
 Both variants share the process, so imports are not in either (``import`` is printed once).
@@ -30,7 +30,7 @@ from hydra.types import RunMode  # noqa: E402
 
 from mpclab.experiment import CONF_DIR, run_experiment  # noqa: E402
 from mpclab.registry import register_all  # noqa: E402
-from mpclab.sweeps.compose import CachedComposeLoader  # noqa: E402
+from mpclab.sweeps.compose import JobComposer  # noqa: E402
 from mpclab.warm import ComponentCache  # noqa: E402
 
 register_all()
@@ -49,8 +49,8 @@ def main() -> None:
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"), \
             tempfile.TemporaryDirectory() as tmp:
         loader = GlobalHydra.instance().config_loader()
-        cached = CachedComposeLoader(loader)
         master = loader.load_configuration("config", JOB, RunMode.MULTIRUN)
+        composer = JobComposer(loader, master)
         for k in range(args.jobs):
             overrides = [*JOB, f"seed={k}", *args.overrides]
             for variant in ("cold", "warm") if k % 2 == 0 else ("warm", "cold"):
@@ -58,7 +58,7 @@ def main() -> None:
                 if variant == "cold":
                     cfg = loader.load_sweep_config(master, overrides)
                 else:
-                    cfg = cached.load_sweep_config(master, overrides)
+                    cfg = composer.job_config(overrides)
                 compose_s = time.perf_counter() - t0
                 task = {key: cfg[key] for key in cfg if key != "hydra"}
                 cfg = type(cfg)(task)

@@ -10,11 +10,10 @@ dominated a sweep of short jobs (issue 16). This launcher:
 * pins each worker's BLAS/OpenMP thread pools to ``threads_per_worker`` threads (one job per
   core, no oversubscription);
 * sends a worker only a job's number and overrides; the worker composes the job's config
-  and the task's copy of it without ``hydra`` (cheaply: :mod:`mpclab.sweeps.compose`) and
-  runs it as Hydra's ``run_job`` does, without its copies of the config (:mod:`.job`): job
-  folders, ``.hydra/`` files, logging and
-  callbacks as with Hydra's launchers; a config that fails to
-  compose becomes the job's error row there (the sweeper does not compose jobs up front);
+  (jobs that differ only in values share one tree composed by Hydra:
+  :mod:`mpclab.sweeps.compose`) and runs it with Hydra's ``run_job`` (job folders,
+  ``.hydra/`` files, logging and callbacks as with Hydra's launchers); a config that fails
+  to compose becomes the job's error row there (the sweeper does not compose jobs up front);
 * keeps what a worker built between jobs (``mpclab.warm``: the plant, objective and compiled
   controller of the same structure);
 * returns each job as soon as it ends and writes ``<sweep>/.mpclab/tasks.jsonl`` (per job:
@@ -55,20 +54,19 @@ except ImportError:  # pragma: no cover  (Windows)
 
 import cloudpickle
 from hydra.core.singleton import Singleton
-from hydra.core.utils import JobReturn, configure_log, filter_overrides, setup_globals
+from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 from threadpoolctl import threadpool_limits
 
 from hydra_plugins.mpclab_launcher import recovery
-from hydra_plugins.mpclab_launcher.job import run_owned_job
 from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
 from mpclab.sweeps.callbacks import STATE_DIR
-from mpclab.sweeps.compose import cached
+from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
 
 log = logging.getLogger(__name__)
@@ -95,10 +93,11 @@ _WORKER: dict[str, Any] = {}
 
 def _init_worker(
     hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
-    singleton_state: dict[Any, Any] | None, threads: int, workers: int,
-    board_cells: Any = None,
+    composer: JobComposer, singleton_state: dict[Any, Any] | None, threads: int,
+    workers: int, board_cells: Any = None,
 ) -> None:
-    """Set up this process to run jobs; ``singleton_state``: Hydra's singletons (config
+    """Set up this process to run jobs; ``composer``: the sweep's job configs, with the
+    trees the launching process composed; ``singleton_state``: Hydra's singletons (config
     store, runtime, resolvers) for a started worker, None where they are this process's own
     (in the launching process, or forked from it); ``board_cells``: the shared array of the
     pool's :class:`~.recovery.JobBoard`, where a worker notes each job it starts and ends."""
@@ -109,10 +108,9 @@ def _init_worker(
     setup_globals()
     if singleton_state is not None:
         Singleton.set_state(singleton_state)  # and scans Hydra's plugins again
-    hydra_context.config_loader = cached(hydra_context.config_loader)
     board = None if board_cells is None else JobBoard(board_cells)
     _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function,
-                   board=board)
+                   board=board, composer=composer)
 
 
 def _init_pickled(blob: bytes, board_cells: Any = None) -> None:
@@ -139,8 +137,7 @@ def _run_one(
     t0, start, cpu0, faults0 = time.perf_counter(), time.time(), time.process_time(), _faults()
     ctx, config = _WORKER["hydra_context"], _WORKER["config"]
     try:
-        sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
-        task_cfg = ctx.config_loader.load_task_config(config, list(overrides))  # no hydra
+        sweep_config = _WORKER["composer"].job_config(overrides)
     except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
         log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
         ret = record_job_error(ctx, config, idx, overrides, exc)
@@ -148,7 +145,12 @@ def _run_one(
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
             sweep_config.hydra.job.num = idx
-        ret = run_owned_job(ctx, sweep_config, task_cfg, _WORKER["task_function"])
+        ret = run_job(hydra_context=ctx, task_function=_WORKER["task_function"],
+                      config=sweep_config, job_dir_key="hydra.sweep.dir",
+                      job_subdir_key="hydra.sweep.subdir")
+        # the configs stay here: the launching process needs the return value only (and a
+        # config holds schema classes that a started worker's copy of a module redefines)
+        ret.cfg = ret.hydra_cfg = None
     task_s, cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
     value = ret._return_value
     timing = value.get("timing", {}) if isinstance(value, dict) else {}
@@ -202,6 +204,7 @@ class PoolLauncher(Launcher):
         self.config: DictConfig | None = None
         self.hydra_context: HydraContext | None = None
         self.task_function: TaskFunction | None = None
+        self.composer: JobComposer | None = None
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
               config: DictConfig) -> None:
@@ -236,7 +239,11 @@ class PoolLauncher(Launcher):
         # a forked worker inherits Hydra's singletons, the launching process has them; only a
         # started worker needs a copy (Hydra's get_state deep-copies the config store)
         started = not in_process and self.start_method != "fork"
-        init = (self.hydra_context, self.config, self.task_function,
+        self.composer = JobComposer(self.hydra_context.config_loader, self.config)
+        # each distinct tree composed here, once: the workers inherit it (a tree that fails
+        # to compose fails again in its jobs, each an error row)
+        self.composer.prime(job_overrides)
+        init = (self.hydra_context, self.config, self.task_function, self.composer,
                 Singleton.get_state() if started else None, self.threads, n)
         jobs = list(enumerate(job_overrides, start=initial_job_idx))
         if in_process:
@@ -345,10 +352,11 @@ class PoolLauncher(Launcher):
     def _error_row(self, idx: int, overrides: Sequence[str], exc: Exception,
                    info: dict[str, Any]) -> tuple[JobReturn, dict[str, Any]]:
         """Job ``idx``'s error row, written here (its worker could not write it)."""
-        assert self.hydra_context is not None and self.config is not None
+        assert self.composer is not None
         try:  # its config composed in the worker; here it names the job's components
-            job_cfg = cached(self.hydra_context.config_loader).load_task_config(
-                self.config, list(overrides))
+            job_cfg = self.composer.job_config(overrides)
+            with open_dict(job_cfg):
+                del job_cfg["hydra"]
         except Exception:  # noqa: BLE001  (the row is written all the same)
             job_cfg = None
         ret = record_job_error(self.hydra_context, self.config, idx, overrides, exc, job_cfg)

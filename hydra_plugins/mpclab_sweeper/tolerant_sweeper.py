@@ -1,13 +1,16 @@
-"""Hydra's basic sweeper, except that a job whose config fails to compose becomes an error row.
+"""mpclab's sweeper: Hydra's basic sweep syntax, and a job that fails to compose is a row.
 
-Hydra composes every job's config before launching any (``validate_batch_is_legal``) and
-aborts the whole sweep on the first failure, e.g. ``controller.horizon=10,ten``. This sweeper
-instead writes that job's ``summary.json`` with ``status: error`` and Hydra's message into its
-job folder, reports it to the callbacks like a finished job, and launches the others with
-their usual job numbers. It composes through :mod:`mpclab.sweeps.compose` (each defaults tree
-once), and not at all up front when the launcher composes in its workers and records compose
-errors there (mpclab's pool launcher): then the launching process composes nothing. It lives
-in the ``hydra_plugins`` namespace because Hydra instantiates sweepers only from there;
+It makes the same jobs, in the same order and with the same numbers, as Hydra's basic sweeper
+(:func:`mpclab.sweeps.expand.job_overrides`: every comma list, ``range`` and ``glob`` expanded,
+the cartesian product in the order the keys first appear, ``hydra.sweeper.params`` first,
+batches of ``max_batch_size``). Hydra's basic sweeper composes every job's config before
+launching any and aborts the sweep at the first that fails (``controller.horizon=10,ten``);
+this one launches them all, and a job whose config fails to compose becomes a
+``status: error`` row with Hydra's message in its job folder, reported to the callbacks like a
+finished job. mpclab's pool launcher composes in its workers and writes those rows itself;
+for any other launcher (joblib, Ray) the jobs are composed here first and the failing ones
+recorded here. Written on Hydra's public ``Sweeper`` plugin interface; lives in the
+``hydra_plugins`` namespace because Hydra instantiates sweepers only from there;
 ``conf/hydra/sweeper/tolerant.yaml`` selects it.
 """
 
@@ -17,48 +20,89 @@ import copy
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.plugins import Plugins
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.launcher import Launcher
-from hydra.types import HydraContext
+from hydra.plugins.sweeper import Sweeper
+from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from mpclab import record
-from mpclab.sweeps.compose import cached
+from mpclab.sweeps.expand import job_overrides
 from mpclab.sweeps.jobs import error_summary
 
 log = logging.getLogger(__name__)
 
 
-class TolerantSweeper(BasicSweeper):
-    """:class:`BasicSweeper` that records compose errors as rows and runs the other jobs."""
+class TolerantSweeper(Sweeper):
+    """Hydra's basic sweep; compose errors become rows and the other jobs run.
 
-    def __init__(self, max_batch_size: int | None, params: dict[str, str] | None = None) -> None:
-        super().__init__(max_batch_size=max_batch_size, params=params)
-        self.compose_errors: dict[tuple[str, ...], Exception] = {}
+    Parameters
+    ----------
+    max_batch_size
+        Jobs launched at once (None: all of them).
+    params
+        Sweep overrides from the config (``hydra.sweeper.params``), before the command's.
+    """
 
-    def setup(self, *, hydra_context: Any, task_function: Any, config: DictConfig) -> None:
-        hydra_context = HydraContext(config_loader=cached(hydra_context.config_loader),
-                                     callbacks=hydra_context.callbacks)
-        super().setup(hydra_context=hydra_context, task_function=task_function, config=config)
-        self.launcher = _SkipUncomposable(self.launcher, self)
+    def __init__(self, max_batch_size: int | None = None,
+                 params: dict[str, str] | None = None) -> None:
+        super().__init__()
+        self.max_batch_size = max_batch_size
+        self.params = dict(params or {})
+        self.hydra_context: HydraContext | None = None
+        self.config: DictConfig | None = None
+        self.launcher: Launcher | None = None
 
-    def validate_batch_is_legal(self, batch: Sequence[Sequence[str]]) -> None:
-        """Compose every job's config; remember (do not raise) the ones that fail."""
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
+              config: DictConfig) -> None:
+        self.hydra_context = hydra_context
+        self.config = config
+        self.launcher = Plugins.instance().instantiate_launcher(
+            hydra_context=hydra_context, task_function=task_function, config=config)
+
+    def sweep(self, arguments: list[str]) -> list[Sequence[JobReturn]]:
+        assert self.config is not None and self.launcher is not None
+        assert self.hydra_context is not None
+        lines = [f"{k}={v}" for k, v in self.params.items()] + list(arguments)
+        parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)
+        batches = job_overrides(parser.parse_overrides(lines), self.max_batch_size)
+        sweep_dir = Path(str(self.config.hydra.sweep.dir))
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
+        returns: list[Sequence[JobReturn]] = []
+        start = 0
+        for batch in batches:
+            returns.append(self._launch(batch, start))
+            start += len(batch)
+        return returns
+
+    def _launch(self, batch: list[list[str]], start: int) -> list[JobReturn]:
+        """Launch ``batch`` numbered from ``start``; without a launcher that composes in its
+        workers, first compose each job here and record the ones that fail."""
+        assert self.launcher is not None and self.hydra_context is not None
         if getattr(self.launcher, "composes_in_workers", False):
-            return
-        loader = self.hydra_context.config_loader
-        for overrides in batch:
+            return list(self.launcher.launch(batch, initial_job_idx=start))
+        results: list[JobReturn] = []
+        segment: list[list[str]] = []
+        seg_start = start
+        for idx, overrides in enumerate(batch, start=start):
             try:
-                loader.load_sweep_config(master_config=self.config, sweep_overrides=list(overrides))
+                self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
             except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
                 log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
-                self.compose_errors[tuple(overrides)] = exc
-
-    def record_error(self, idx: int, overrides: Sequence[str], exc: Exception) -> JobReturn:
-        return record_job_error(self.hydra_context, self.config, idx, overrides, exc)
+                if segment:  # the good jobs before it, numbered as usual
+                    results += self.launcher.launch(segment, initial_job_idx=seg_start)
+                results.append(record_job_error(self.hydra_context, self.config, idx,
+                                                overrides, exc))
+                segment, seg_start = [], idx + 1
+                continue
+            segment.append(overrides)
+        if segment:
+            results += self.launcher.launch(segment, initial_job_idx=seg_start)
+        return results
 
 
 def record_job_error(
@@ -90,33 +134,3 @@ def record_job_error(
         cfg.hydra.runtime.output_dir = str(out_dir)
     hydra_context.callbacks.on_job_end(config=cfg, job_return=ret)
     return ret
-
-
-class _SkipUncomposable:
-    """Wraps the launcher: runs the composable jobs, records the others, keeps job numbers."""
-
-    def __init__(self, launcher: Launcher, sweeper: TolerantSweeper) -> None:
-        self.launcher = launcher
-        self.sweeper = sweeper
-
-    def launch(
-        self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int
-    ) -> Sequence[JobReturn]:
-        errors = self.sweeper.compose_errors
-        results: list[JobReturn] = []
-        segment: list[Sequence[str]] = []
-        start = initial_job_idx
-        for idx, overrides in enumerate(job_overrides, start=initial_job_idx):
-            if tuple(overrides) not in errors:
-                segment.append(overrides)
-                continue
-            if segment:  # launch the run of good jobs before this one, numbered as usual
-                results += self.launcher.launch(segment, initial_job_idx=start)
-            results.append(self.sweeper.record_error(idx, overrides, errors[tuple(overrides)]))
-            segment, start = [], idx + 1
-        if segment:
-            results += self.launcher.launch(segment, initial_job_idx=start)
-        return results
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.launcher, name)

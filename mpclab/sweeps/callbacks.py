@@ -18,12 +18,14 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import stream, tables
+from mpclab.sweeps.expand import job_overrides
 
 log = logging.getLogger("mpclab.sweep")
 
@@ -35,26 +37,21 @@ STREAMS = (PROGRESS_FILE, "rows.jsonl", "tasks.jsonl")
 BAR_WIDTH = 20
 #: the folder of the sweep this process is launching, from its start to its end
 _LAUNCHING: list[Path] = []
+#: the first error of the sweep this process launched last, if every one of its jobs failed
+_ALL_FAILED: list[str] = []
 
 
 def count_jobs(config: DictConfig) -> int | None:
-    """How many jobs the basic sweeper makes of this multirun's overrides (None if unknown)."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-    from hydra.utils import get_class
-
+    """How many jobs mpclab's (or Hydra's basic) sweeper makes of this multirun's overrides
+    (None for another sweeper, or a sweep Hydra will report on)."""
     sweeper = config.hydra.sweeper
-    try:
-        if not issubclass(get_class(sweeper._target_), BasicSweeper):
-            return None
-    except Exception:  # noqa: BLE001  (an unknown sweeper: no total)
+    if not str(sweeper.get("_target_", "")).endswith(("TolerantSweeper", ".BasicSweeper")):
         return None
     params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]
     params += list(OmegaConf.to_container(config.hydra.overrides.task))
     try:
-        overrides = OverridesParser.create().parse_overrides(params)
-        batches = BasicSweeper.split_arguments(overrides, None)
-    except Exception:  # noqa: BLE001  (a sweep Hydra will report on; progress just has no total)
+        batches = job_overrides(OverridesParser.create().parse_overrides(params))
+    except Exception:  # noqa: BLE001  (progress just has no total)
         return None
     return sum(len(b) for b in batches)
 
@@ -80,6 +77,14 @@ def interrupted_sweep() -> str | None:
 def forget_sweep() -> None:
     """This process launches no sweep now (its end, or its command's)."""
     _LAUNCHING.clear()
+
+
+def failed_sweep() -> str | None:
+    """The first error of the sweep this process launched last, if every job failed (and
+    forget it); None otherwise."""
+    message = _ALL_FAILED[0] if _ALL_FAILED else None
+    _ALL_FAILED.clear()
+    return message
 
 
 def _clock(seconds: float) -> str:
@@ -146,6 +151,7 @@ class SweepCallback(Callback):
             (state / name).write_text("")
         self._progress.pop(state, None)
         _LAUNCHING[:] = [Path(config.hydra.sweep.dir)]
+        _ALL_FAILED.clear()
         log.info("sweep of %s jobs into %s", "?" if total is None else total,
                  config.hydra.sweep.dir)
 
@@ -201,6 +207,9 @@ class SweepCallback(Callback):
             log.warning("sweep: no run records in %s", sweep_dir)
             return
         counts = df["status"].value_counts().to_dict()
+        if set(counts) == {"error"}:
+            first = df.sort_values("job")["error"].iloc[0] if "job" in df else df["error"].iloc[0]
+            _ALL_FAILED[:] = [f"every job of the sweep in {sweep_dir} failed; the first: {first}"]
         log.info("sweep finished: %d runs in %s, %s", len(df), _clock(elapsed),
                  ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
         log.info("sweep by %s:\n%s", ", ".join(tables.group_keys(df)),
