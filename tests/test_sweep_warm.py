@@ -1,9 +1,9 @@
 """Warm sweep workers: a shared tree gives Hydra's config, reused components repeat a run.
 
 A sweep worker composes each job from a tree shared by the jobs that differ only in values
-(mpclab.sweeps.compose) and reuses the plant, objective and controller of an earlier job of the same structure
-(mpclab.warm). Both must be invisible in the results: the config is Hydra's own, and a run
-on a reused controller is the run a freshly built one makes.
+(mpclab.sweeps.compose) and reuses the plant, objective and controller of an earlier job of
+the same structure (mpclab.warm). Both must be invisible in the results: the config is
+Hydra's own, and a run on a reused controller is the run a freshly built one makes.
 """
 
 from __future__ import annotations

@@ -54,7 +54,14 @@ except ImportError:  # pragma: no cover  (Windows)
 
 import cloudpickle
 from hydra.core.singleton import Singleton
-from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
+from hydra.core.utils import (
+    JobReturn,
+    JobStatus,
+    configure_log,
+    filter_overrides,
+    run_job,
+    setup_globals,
+)
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
@@ -152,7 +159,7 @@ def _run_one(
         # config holds schema classes that a started worker's copy of a module redefines)
         ret.cfg = ret.hydra_cfg = None
     task_s, cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
-    value = ret._return_value
+    value = ret.return_value if ret.status == JobStatus.COMPLETED else None
     timing = value.get("timing", {}) if isinstance(value, dict) else {}
     # minor faults: a forked worker copies each inherited page it writes (copy on write)
     faults = None if faults0 is None else _faults() - faults0

@@ -129,7 +129,8 @@ def record_job_error(
     OmegaConf.save(OmegaConf.create(list(overrides)), out_dir / ".hydra" / "overrides.yaml")
     record.write_summary(out_dir, summary)
     ret = JobReturn(overrides=list(overrides), status=JobStatus.COMPLETED,
-                    _return_value=summary, working_dir=str(out_dir))
+                    working_dir=str(out_dir))
+    ret.return_value = summary
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out_dir)
     hydra_context.callbacks.on_job_end(config=cfg, job_return=ret)
