@@ -22,6 +22,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from mpclab.config import CONF_DIR
 from mpclab.errors import bad_input_message
 from mpclab.help import text as help_text
 from mpclab.origin import RunOrigin
@@ -35,7 +36,6 @@ register_all()  # every component's schema must be in the ConfigStore before com
 # a new virtual environment per worker, without the `ray` extra; workers use this Python.
 os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
 
-CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 log = logging.getLogger("mpclab")
 
 #: run statuses of a single run that make the process exit non-zero
@@ -66,7 +66,7 @@ class _TaskError(BaseException):
         self.error = error
 
 
-@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> dict:
     """One run; in a multirun, one job that resumes or records its error as a row."""
     try:
@@ -81,7 +81,7 @@ def _task(cfg: DictConfig) -> dict:
     hc = HydraConfig.get()
     out_dir = Path(hc.runtime.output_dir)
     if hc.runtime.choices.get("experiment") is None:
-        names = sorted(p.stem for p in (Path(CONF_DIR) / "experiment").glob("*.yaml"))
+        names = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
         log.warning("no +experiment=NAME given: running the bare defaults (Study A's car "
                     "without its terminal constraint). Experiments: %s", ", ".join(names))
     if hc.mode == RunMode.MULTIRUN:

@@ -1,5 +1,7 @@
-"""The root config schema: the top-level keys every composed config has.
+"""Where the configs live, and the root config schema: the top-level keys every config has.
 
+:data:`CONF_DIR` is the one definition of the config folder: ``conf/`` at the top of the
+source tree, which an installed wheel carries as ``mpclab/conf`` (``pyproject.toml``).
 Component groups (``plant``, ``controller``, ...) carry their own schemas (see
 :mod:`mpclab.registry`); here they are typed ``Any`` so that any registered choice fits.
 """
@@ -7,10 +9,15 @@ Component groups (``plant``, ``controller``, ...) carry their own schemas (see
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
+
+_PACKAGE = Path(__file__).resolve().parent
+#: the config folder: shipped inside the installed package, else the source tree's
+CONF_DIR = _PACKAGE / "conf" if (_PACKAGE / "conf").is_dir() else _PACKAGE.parent / "conf"
 
 
 @dataclass

@@ -11,14 +11,13 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import record
+from mpclab.config import CONF_DIR
 from mpclab.errors import ConfigError, number
 from mpclab.instantiate import build
 from mpclab.origin import RunOrigin, where_set
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 from mpclab.warm import ComponentCache
-
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 def compose(overrides: Sequence[str] = ()) -> DictConfig:
