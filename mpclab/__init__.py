@@ -1,0 +1,27 @@
+"""mpclab: declarative experiments in model predictive control of ground vehicles.
+
+From Python (a notebook, a loop of your own)::
+
+    import mpclab
+    cfg = mpclab.compose(["+experiment=zumo_bug2", "seed=3"])   # or config_dir="my_confs"
+    result = mpclab.run(cfg)          # result.steps, result.horizons, result.summary
+
+The names below load on first use, so that ``python -m mpclab.tables`` and the like do not
+import the solvers.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: the Python API: name -> the module that defines it
+API = {"compose": "mpclab.experiment", "run": "mpclab.experiment",
+       "build_run": "mpclab.experiment", "ComponentCache": "mpclab.warm"}
+__all__ = list(API)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in API:
+        raise AttributeError(f"module 'mpclab' has no attribute {name!r}")
+    return getattr(importlib.import_module(API[name]), name)

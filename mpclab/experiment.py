@@ -20,16 +20,40 @@ from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 from mpclab.warm import ComponentCache
 
 
-def compose(overrides: Sequence[str] = ()) -> DictConfig:
-    """The config ``python -m mpclab OVERRIDES...`` runs with (Hydra's compose API)."""
+def compose(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> DictConfig:
+    """The config ``python -m mpclab OVERRIDES...`` runs with (Hydra's compose API).
+
+    ``config_dir``: a folder of the user's own configs (``experiment/``, ``scenario/``, ...),
+    searched after mpclab's, as ``-cd DIR`` on the command line.
+    """
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
     from mpclab.registry import register_all
 
     register_all()
+    extra = [] if config_dir is None else [
+        f"hydra.searchpath=[file://{Path(config_dir).expanduser().resolve()}]"]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        return hydra_compose(config_name="config", overrides=list(overrides))
+        return hydra_compose(config_name="config", overrides=[*extra, *overrides])
+
+
+def run(cfg: DictConfig, out_dir: str | Path | None = None,
+        cache: ComponentCache | None = None) -> RunResult:
+    """Run the experiment ``cfg`` (from :func:`compose`) and write its run record.
+
+    ``out_dir`` defaults to ``outputs/<name>/<date>_<time>`` below the working directory, as
+    for ``python -m mpclab``. The result holds the step log (``steps``), every predicted
+    horizon (``horizons``) and the summary (``summary``). ``cache``: a
+    :class:`~mpclab.warm.ComponentCache` kept between calls reuses plant, objective and
+    controller across runs of the same structure (seeds of one experiment).
+    """
+    if out_dir is None:
+        out_dir = Path("outputs") / str(cfg.name) / time.strftime("%Y-%m-%d_%H-%M-%S")
+        suffix, base = 1, out_dir
+        while out_dir.exists():
+            out_dir, suffix = base.with_name(f"{base.name}_{suffix}"), suffix + 1
+    return run_experiment(cfg, Path(out_dir), cache)
 
 
 def build_run(
