@@ -118,7 +118,10 @@ def cli(argv: Sequence[str] | None = None) -> int:
     """
     args = list(sys.argv[1:] if argv is None else argv)
     if "--help" in args or "-h" in args:  # mpclab's help; Hydra's is --hydra-help
-        sys.stdout.write(help_text())
+        try:
+            sys.stdout.write(help_text([a for a in args if a not in ("--help", "-h")]))
+        except Exception as exc:  # noqa: BLE001  (a command line that does not compose)
+            return report(exc, os.environ.get(_FULL_ERROR) is not None)
         return 0
     user_full_error = os.environ.get(_FULL_ERROR)
     saved_argv = sys.argv

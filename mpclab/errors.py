@@ -21,7 +21,8 @@ from typing import Any, NoReturn
 
 import yaml
 from hydra.errors import CompactHydraException, InstantiationException, MissingConfigException
-from omegaconf.errors import OmegaConfBaseException
+from omegaconf import DictConfig
+from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 
 class ConfigError(ValueError):
@@ -127,6 +128,11 @@ def bad_input_message(exc: BaseException) -> str | None:
         text = str(exc)
         if isinstance(cause, yaml.YAMLError):
             return yaml_message(cause)
+        if (isinstance(cause, ConfigAttributeError | ConfigKeyError) and cause.key is not None
+                and isinstance(cause.parent_node, DictConfig)):  # a mistyped existing key
+            parent = str(cause.full_key or cause.key).rpartition(".")[0]
+            valid = [str(k) for k in cause.parent_node if str(k) != "hydra"]
+            return str(unknown("key", str(cause.key), valid, parent or "the config"))
         if isinstance(cause, OmegaConfBaseException) and str(cause) not in text:
             text += "\n" + str(cause)
         return _trim(text)

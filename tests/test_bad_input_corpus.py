@@ -311,7 +311,7 @@ LAUNCHER_CASES = [
     ("start_method=thread", ["hydra.launcher.start_method", "thread", "forkserver"]),
     ("job_timeout_s=abc", ["hydra.launcher.job_timeout_s", "abc"]),
     ("job_timeout_s=-1", ["hydra.launcher.job_timeout_s: expected seconds > 0", "got -1"]),
-    ("n_job=2", ["hydra.launcher.n_job"]),
+    ("n_job=2", ["unknown key 'n_job' in hydra.launcher", "Did you mean 'n_jobs'?"]),
 ]
 
 

@@ -1,0 +1,42 @@
+"""``--help`` describes the command line it is given; a mistyped key gets a did-you-mean."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mpclab.__main__ import cli
+
+
+def help_of(capsys: pytest.CaptureFixture, *args: str) -> str:
+    assert cli([*args, "--help"]) == 0
+    return capsys.readouterr().out
+
+
+def test_help_shows_the_experiment_chosen_and_its_controllers_options(capsys) -> None:
+    text = help_of(capsys, "+experiment=car_cvxpy", "controller.horizon=7")
+    assert "The config of: +experiment=car_cvxpy controller.horizon=7" in text
+    assert "name: car_cvxpy" in text and "horizon: 7" in text
+    assert "Options of controller mpclab.controllers.cvxpy.CvxpyMPC" in text
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("max_iterations"))
+    assert "truncated" in line  # its meaning, from the constructor's docstring
+    assert not any(ln.strip().startswith("plant") for ln in text.splitlines()
+                   if "Options of" not in ln and ln.startswith("  plant,"))
+
+
+def test_help_lists_the_experiments_of_a_folder_added_with_cd(capsys, tmp_path: Path) -> None:
+    (tmp_path / "experiment").mkdir()
+    (tmp_path / "experiment" / "mine.yaml").write_text(
+        "# @package _global_\n# My own car run.\ndefaults:\n  - car_cvxpy\n  - _self_\n"
+        "name: mine\n")
+    text = help_of(capsys, "-cd", str(tmp_path), "+experiment=mine")
+    assert f"in {tmp_path}:" in text and "My own car run." in text
+    assert "name: mine" in text
+
+
+def test_a_mistyped_key_gets_mpclabs_did_you_mean(capsys) -> None:
+    assert cli(["+experiment=car_cvxpy", "+ci=smoke", "controller.horizn=5"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown key 'horizn' in controller. Did you mean 'horizon'?" in err
+    assert "Traceback" not in err and "+controller.horizn" not in err
