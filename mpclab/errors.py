@@ -132,7 +132,8 @@ def bad_input_message(exc: BaseException) -> str | None:
                 and isinstance(cause.parent_node, DictConfig)):  # a mistyped existing key
             parent = str(cause.full_key or cause.key).rpartition(".")[0]
             valid = [str(k) for k in cause.parent_node if str(k) != "hydra"]
-            return str(unknown("key", str(cause.key), valid, parent or "the config"))
+            head = text.strip().splitlines()[0].rstrip(".")  # Hydra's "Could not override 'K'"
+            return f"{head}: {unknown('key', str(cause.key), valid, parent or 'the config')}"
         if isinstance(cause, OmegaConfBaseException) and str(cause) not in text:
             text += "\n" + str(cause)
         return _trim(text)

@@ -13,8 +13,8 @@ composition, search path included), applies a job's value overrides to a copy as
 (the same rules and messages) and fills in the three fields Hydra derives from a job's
 overrides. ``tests/test_hydra_routes.py`` checks every job config against Hydra's own path.
 
-Whether a key is a config group is asked of the loader (``get_group_options``) with the
-job's structural overrides, so that a group that exists only in a folder added by
+Which keys are config groups is asked of the loader (``get_group_options``) with the
+job's ``hydra.*`` overrides, so that a group that exists only in a folder added by
 ``hydra.searchpath`` counts as one.
 """
 
@@ -32,6 +32,7 @@ from textwrap import dedent
 from typing import Any
 
 from hydra.core.config_loader import ConfigLoader
+from hydra.core.object_type import ObjectType
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import ConfigCompositionException
@@ -64,7 +65,7 @@ class JobComposer:
         self.loader = loader
         self.master = master
         self._trees: OrderedDict[tuple[str, ...], bytes | DictConfig] = OrderedDict()
-        self._groups: dict[tuple[str, tuple[str, ...]], bool] = {}
+        self._groups: dict[tuple[str, tuple[str, ...]], frozenset[str]] = {}
 
     def prime(self, jobs: Sequence[Sequence[str]]) -> None:
         """Compose the tree of each job's structural overrides (each distinct one once, up to
@@ -132,12 +133,18 @@ class JobComposer:
         """Hydra's rule: a config-group override names a group and has no dict value."""
         if isinstance(override.value(), dict):
             return False
-        key = (override.key_or_group, hydra_lines)
+        parent, _, name = override.key_or_group.rpartition("/")
+        return name in self._groups_in(parent, hydra_lines)
+
+    def _groups_in(self, parent: str, hydra_lines: tuple[str, ...]) -> frozenset[str]:
+        """The config groups in group ``parent`` ("" for the top), asked of the loader once
+        per search path (a job's ``hydra.*`` overrides may move it)."""
+        key = (parent, hydra_lines)
         found = self._groups.get(key)
         if found is None:
             hydra = [*OmegaConf.to_container(self.master.hydra.overrides.hydra), *hydra_lines]
-            found = bool(self.loader.get_group_options(
-                override.key_or_group, results_filter=None,
+            found = frozenset(self.loader.get_group_options(
+                parent, results_filter=ObjectType.GROUP,
                 config_name=self.master.hydra.job.config_name, overrides=hydra))
             self._groups[key] = found
         return found
