@@ -6,11 +6,11 @@ recorded and perturbed states, against a multi-start tight IPOPT reference.
     uv run python experiments/agreement/zumo_nlp.py --nn-weights PATH         # another net
 
 **States.** One closed loop of the experiment (``--experiment``, default ``zumo_bug2``,
-``sim=nominal``) gives the states; its step log is replayed through the loop's own
+``sim=nominal``; ``--sampler`` adds overrides for this run only) gives the states; its step log is replayed through the loop's own
 ``sense`` (range sensor on the scenario's world, supervisor), so each state comes with the
 detections, ranges and BUG2 mode it had in the run, and with the run's previous plan (the
 applied input the rate term reads, the backends' warm start). ``--states`` steps are taken
-per BUG2 mode, evenly spread; at each, ``--perturbed`` more states add seeded Gaussian
+per BUG2 mode, evenly spread, and the ``--closest`` steps nearest an obstacle; at each, ``--perturbed`` more states add seeded Gaussian
 noise to the pose (``--sigma``; redrawn if the robot would touch an obstacle), sensed and
 supervised afresh from the supervisor's state at that step.
 
@@ -73,6 +73,9 @@ QUIET = ["recorder=none", "progress=false", "figures.enabled=false", "sim=nomina
 VIOL_FLAG = 1e-6
 #: costs within this (relative) are one optimum: the backends' own tolerance is 1e-6
 SAME = 1e-6
+#: a backend's plan replaces the reference only if it is as feasible as the reference: at an
+#: active constraint a violation of 1e-7 (a solver at tol 1e-6) can buy 1e-6 of the cost
+REF_FEAS = 1e-8
 
 
 @dataclass
@@ -171,14 +174,15 @@ class NlpScorer:
         lb, ub = self.ocp.lbw.copy(), self.ocp.ubw.copy()
         if u0 is not None:
             lb[self.ocp.u_idx[0]] = ub[self.ocp.u_idx[0]] = u0
-        best, costs = None, {}
+        best, costs, failed = None, {}, {}
         for name, U in starts.items():
             U = np.clip(U, self.plant.u_lb, self.plant.u_ub)
             if u0 is not None:
                 U = U.copy()
                 U[0] = u0
-            w, ok, _ = self._solve(self.w_of(x, U, u_prev), p, lb, ub)
+            w, ok, why = self._solve(self.w_of(x, U, u_prev), p, lb, ub)
             if not ok:
+                failed[name] = why
                 continue
             Ur = w[self.ocp.u_idx]
             J, viol = self.cost(x, Ur, u_prev, p)
@@ -187,14 +191,18 @@ class NlpScorer:
                 best = {"cost": J, "u_pred": Ur, "viol": viol, "start": name,
                         "active": self.active_inequalities(w, p)}
         if best is None:
-            raise RuntimeError("the reference IPOPT converged from no start")
-        return best | {"costs": costs, "tried": len(starts)}
+            if u0 is not None:  # no feasible continuation of that first move
+                return {"cost": np.nan, "viol": np.nan, "failed": failed}
+            raise RuntimeError(f"the reference IPOPT converged from no start: {failed}")
+        return best | {"costs": costs, "tried": len(starts), "failed": failed}
 
 
 def record_samples(run: Run, steps: pd.DataFrame, horizons: pd.DataFrame, per_mode: int,
-                   perturbed: int, sigma: np.ndarray, seed: int) -> list[Sample]:
-    """Recorded states (``per_mode`` steps per supervisor mode, evenly spread) and
-    ``perturbed`` noisy copies of each, with what the loop would give the controller."""
+                   perturbed: int, sigma: np.ndarray, seed: int,
+                   closest: int = 0) -> list[Sample]:
+    """Recorded states (``per_mode`` steps per supervisor mode, evenly spread, and the
+    ``closest`` steps nearest an obstacle) and ``perturbed`` noisy copies of each, with what
+    the loop would give the controller."""
     plant, scen = run.plant, run.scenario
     calls = steps[steps["status"] != "final"].reset_index(drop=True)
     X = calls[list(plant.states)].to_numpy(dtype=float)
@@ -204,6 +212,8 @@ def record_samples(run: Run, steps: pd.DataFrame, horizons: pd.DataFrame, per_mo
         idx = np.asarray(sorted(idx))
         ks |= {int(idx[i]) for i in np.linspace(0, len(idx) - 1, min(per_mode, len(idx)))
                .round().astype(int)}
+    if closest and "clearance_m" in calls:  # where the obstacles matter most
+        ks |= {int(k) for k in calls["clearance_m"].nsmallest(closest).index}
     rng = np.random.default_rng(seed)
     ipose = [plant.state_index(s) for s in (*plant.position, plant.heading)]
     run.supervisor.reset(scen.x0, scen.goal)
@@ -247,13 +257,18 @@ def _perturbed(scen: Any, x: np.ndarray, ipose: list[int], sigma: np.ndarray,
 def compare(experiment: str = "zumo_bug2", extra: list[str] | None = None, per_mode: int = 6,
             perturbed: int = 3, sigma: tuple[float, float, float] = (0.01, 0.01, 0.1),
             n_random: int = 3, seed: int = 0, nn_weights: Path | None = NN_WEIGHTS,
-            backends: list[str] | None = None) -> pd.DataFrame:
-    """One row per (state, backend) and one per state for the reference: module docstring."""
+            backends: list[str] | None = None, closest: int = 0,
+            sampler: list[str] | None = None) -> pd.DataFrame:
+    """One row per (state, backend) and one per state for the reference: module docstring.
+
+    ``extra``: overrides of the experiment; ``sampler``: more overrides for the run that
+    gives the states only, e.g. ``controller.collision_distance=0``: the states of an
+    unconstrained run scored on the constrained NLP."""
     base = [f"+experiment={experiment}", *(extra or []), *QUIET]
-    run = build_run(compose(base))
+    run = build_run(compose([*base, *(sampler or [])]))
     res = simulate(run)
     samples = record_samples(run, res.steps, res.horizons, per_mode, perturbed,
-                             np.asarray(sigma), seed)
+                             np.asarray(sigma), seed, closest)
     names = [b for b in BACKENDS if backends is None or b in backends]
     ctrls = {b: build_run(compose([*base, *BACKENDS[b]])).controller for b in names}
     ref_ctrl = ctrls.get("ipopt") or build_run(compose([*base, *BACKENDS["ipopt"]])).controller
@@ -297,10 +312,13 @@ def compare(experiment: str = "zumo_bug2", extra: list[str] | None = None, per_m
             else:  # no plan (the net): the NLP's best with the first move held at its move
                 nn = sc.reference(s.x, u_prev, p, {"ref": ref["u_pred"], **starts}, u0=r.u)
                 J, viol = nn["cost"], nn["viol"]
+                if not np.isfinite(J):  # IPOPT's word on the held move: e.g. infeasible
+                    print(f"{s.kind} step {s.step}: {b}'s first move has no converged "
+                          f"continuation: {sorted(set(nn['failed'].values()))}", file=sys.stderr)
             scored[b] = (J, viol)
-        # a feasible backend plan cheaper than every IPOPT start: the reference takes it
+        # a backend plan cheaper than every IPOPT start, as feasible: the reference takes it
         beaten = {b: J for b, (J, v) in scored.items()
-                  if v <= VIOL_FLAG and J < ref["cost"] - SAME * max(abs(ref["cost"]), 1.0)}
+                  if v <= REF_FEAS and J < ref["cost"] - SAME * max(abs(ref["cost"]), 1.0)}
         ref_cost = min([ref["cost"], *beaten.values()])
         scale = max(abs(ref_cost), 1.0)
         spread = max(ref["costs"].values()) - ref["cost"]
@@ -317,7 +335,7 @@ def compare(experiment: str = "zumo_bug2", extra: list[str] | None = None, per_m
                 "backend": b, "status": str(r.status), "iterations": r.iterations,
                 "cost": J, "gap": (J - ref_cost) / scale,
                 "du0": float(np.max(np.abs(r.u - ref["u_pred"][0]) / span)),
-                "viol": viol, "flagged": viol > VIOL_FLAG, "below_ref": b in beaten,
+                "viol": viol, "flagged": not viol <= VIOL_FLAG, "below_ref": b in beaten,
                 # the backend's own objective value against this scoring of its plan: the
                 # same NLP, so equal up to the solver's tolerance (no own value: the net)
                 "own_cost_err": (r.cost - J) / scale,
@@ -332,7 +350,7 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
     out = pd.DataFrame({
         "states": g.size(),
         "converged": g["status"].agg(lambda s: float((s == "converged").mean())),
-        "gap_median": g["gap"].median(), "gap_max": g["gap"].max(),
+        "gap_min": g["gap"].min(), "gap_median": g["gap"].median(), "gap_max": g["gap"].max(),
         "du0_max": g["du0"].max(), "viol_max": g["viol"].max(),
     })
     if "flagged" in df:
@@ -348,6 +366,10 @@ def main() -> None:
     ap.add_argument("--experiment", default="zumo_bug2")
     ap.add_argument("--states", type=int, default=6, help="recorded states per BUG2 mode")
     ap.add_argument("--perturbed", type=int, default=3, help="perturbed states per recorded one")
+    ap.add_argument("--closest", type=int, default=3,
+                    help="also the steps nearest an obstacle (clearance), this many")
+    ap.add_argument("--sampler", action="append", default=[], metavar="OVERRIDE",
+                    help="more overrides for the run that gives the states only (repeat)")
     ap.add_argument("--random", type=int, default=3, help="random starts of the reference")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--nn-weights", type=Path, default=NN_WEIGHTS,
@@ -360,7 +382,9 @@ def main() -> None:
         print(f"no weights at {weights}: the net is left out", file=sys.stderr)
         weights = None
     df = compare(args.experiment, args.overrides, args.states, args.perturbed,
-                 n_random=args.random, seed=args.seed, nn_weights=weights)
+                 n_random=args.random, seed=args.seed, nn_weights=weights,
+                 closest=args.closest,
+                 sampler=args.sampler)
     pd.set_option("display.width", 200)
     pd.set_option("display.max_columns", 20)
     cols = ["kind", "step", "mode", "backend", "status", "cost", "gap", "du0", "viol",
