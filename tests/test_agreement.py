@@ -6,7 +6,9 @@ from __future__ import annotations
 import importlib.util
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
+import casadi as ca
 import numpy as np
 import pandas as pd
 import pytest
@@ -115,3 +117,42 @@ def test_zumo_converged_nlp_backends_agree_with_the_reference(zumo_rows) -> None
     rti = df[df.backend == "rti"]
     assert set(rti.status) <= {"converged", "truncated"}
     assert (rti[rti.status == "converged"].gap < 1e-4).all()
+
+
+class _Integrator:
+    """x+ = x + u (one state, one input in [-1, 1]): rollouts by hand."""
+
+    u_lb, u_ub = np.array([-1.0]), np.array([1.0])
+
+    def rollout(self, x0, U, dt):
+        return np.concatenate([np.atleast_1d(x0), np.atleast_1d(x0) + np.cumsum(U[:, 0])])[:, None]
+
+
+def test_nlp_scorer_minimizes_what_a_plan_does_not_give() -> None:
+    """A slack the plan does not set is minimized with the plan held (the exact L1 penalty's
+    value), and the reference finds the analytic optimum: min u0^2 + u1^2 + 10 s with
+    x2 + s >= 1, s >= 0, x_{k+1} = x_k + u_k from 0 is u = (0.5, 0.5), cost 0.5."""
+    score = sys.modules["nlp_score"]  # loaded beside zumo_nlp
+    w = ca.SX.sym("w", 6)  # x0 u0 x1 u1 x2 s
+    p = ca.SX.sym("p", 1)
+    x0, u0, x1, u1, x2, s = (w[i] for i in range(6))
+    nlp = {"x": w, "p": p, "f": u0**2 + u1**2 + 10 * s,
+           "g": ca.vertcat(x0 - p, x1 - x0 - u0, x2 - x1 - u1, x2 + s)}
+    ocp = SimpleNamespace(
+        nlp=nlp, lbg=np.array([0, 0, 0, 1.0]), ubg=np.array([0, 0, 0, np.inf]),
+        lbw=np.array([-np.inf, -1, -np.inf, -1, -np.inf, 0]),
+        ubw=np.array([np.inf, 1, np.inf, 1, np.inf, np.inf]),
+        x_idx=np.array([[0], [2], [4]]), u_idx=np.array([[1], [3]]), s_idx=None)
+    sc = score.NlpScorer(ocp, _Integrator(), 1.0)
+    assert list(sc.free) == [5]
+    J, viol = sc.cost(np.zeros(1), np.array([[0.2], [0.3]]), np.zeros(1), np.zeros(1))
+    assert J == pytest.approx(0.04 + 0.09 + 10 * 0.5, rel=1e-6)  # s = 1 - x2 = 0.5
+    assert viol < 1e-8
+    ref = sc.reference(np.zeros(1), np.zeros(1), np.zeros(1), {"zero": np.zeros((2, 1))})
+    assert ref["cost"] == pytest.approx(0.5, rel=1e-7)
+    np.testing.assert_allclose(ref["u_pred"].ravel(), [0.5, 0.5], atol=1e-6)
+    assert ref["active"] == 1  # x2 + s >= 1 holds with equality
+    # the first move held at -1: the best continuation is u1 = 1, x2 = 0, s = 1
+    held = sc.reference(np.zeros(1), np.zeros(1), np.zeros(1), {"zero": np.zeros((2, 1))},
+                        u0=np.array([-1.0]))
+    assert held["cost"] == pytest.approx(1 + 1 + 10, rel=1e-6)
