@@ -28,6 +28,7 @@ class SolveStatus(StrEnum):
 #: statuses whose result is applied; anything else triggers the fallback
 USABLE = frozenset({SolveStatus.converged, SolveStatus.truncated})
 
+
 class Problem(StrEnum):
     """What problem a backend's calls solve, so that ``converged`` can be read: it means the
     solver met its tolerance *on this problem*, which is the MPC's nonlinear OCP only for

@@ -323,6 +323,7 @@ class CvxpyMPC(Controller):
         return Problem.nonlinear if self.sl is SlMode.converge else Problem.linearized
 
     def metrics(self, steps: Any) -> dict[str, Any]:
+        """What problem a ``converged`` step solved, and the linearization scheme."""
         return {PROBLEM_KEY: self.solved_problem.value, "sl": self.sl.value}
 
     def _trust_region_qp(self, bar: Point, r: float) -> QPSolution:
