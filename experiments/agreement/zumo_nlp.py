@@ -53,6 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nlp_score import REF_FEAS, SAME, VIOL_FLAG, NlpScorer, posed_nlp  # noqa: E402
 from stamp import stamp  # noqa: E402  (beside this script)
 
+from mpclab import record  # noqa: E402
 from mpclab.controllers.base import Controller, ControlStep, StepContext, input_vector  # noqa: E402
 from mpclab.experiment import build_run, compose  # noqa: E402
 from mpclab.instantiate import build  # noqa: E402
@@ -96,7 +97,7 @@ def record_samples(run: Run, steps: pd.DataFrame, horizons: pd.DataFrame, per_mo
     ``closest`` steps nearest an obstacle) and ``perturbed`` noisy copies of each, with what
     the loop would give the controller."""
     plant, scen = run.plant, run.scenario
-    calls = steps[steps["status"] != "final"].reset_index(drop=True)
+    calls = record.controller_steps(steps).reset_index(drop=True)
     X = calls[list(plant.states)].to_numpy(dtype=float)
     U = calls[list(plant.inputs)].to_numpy(dtype=float)
     ks: set[int] = set()
@@ -175,6 +176,8 @@ def compare(experiment: str = "zumo_bug2", extra: list[str] | None = None, per_m
     plant, T, dt = ref_ctrl.plant, ref_ctrl.horizon, ref_ctrl.dt
     span = np.where(np.isfinite(plant.u_ub - plant.u_lb), plant.u_ub - plant.u_lb, 1.0)
     rng = np.random.default_rng(seed + 1)
+    lo = np.where(np.isfinite(plant.u_lb), plant.u_lb, -1.0)
+    hi = np.where(np.isfinite(plant.u_ub), plant.u_ub, 1.0)
     scorers: dict[int, NlpScorer] = {}
     rows = []
     for s in samples:
@@ -191,8 +194,8 @@ def compare(experiment: str = "zumo_bug2", extra: list[str] | None = None, per_m
         starts = {"cold": np.tile(cold, (T, 1)), "zero": np.zeros((T, plant.nu))}
         if s.prev is not None:
             starts["warm"] = np.vstack([s.prev.u_pred[1:], s.prev.u_pred[-1:]])
-        for i in range(n_random):
-            starts[f"random{i}"] = rng.uniform(plant.u_lb, plant.u_ub, (T, plant.nu))
+        for i in range(n_random):  # inside the bounds (in [-1, 1] where unbounded)
+            starts[f"random{i}"] = rng.uniform(lo, hi, (T, plant.nu))
         starts |= {b: r.u_pred for b, r in plans.items() if r.ok and len(r.u_pred) == T}
         ref = sc.reference(s.x, u_prev, p, starts)
         at = {"kind": s.kind, "step": s.step, "t": s.t, "mode": s.ctx.mode,
