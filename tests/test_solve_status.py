@@ -11,6 +11,7 @@ from mpclab.controllers.casadi import CasadiMPC, read_status
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
+from mpclab.status import PROBLEM_KEY, Problem
 
 
 def _zumo(**kw) -> CasadiMPC:
@@ -126,3 +127,20 @@ def test_any_iteration_cap_is_truncated_never_an_exception(run_cfg, overrides, c
     # short of its cap while it reports Maximum_Iterations_Exceeded)
     assert (unconverged["iterations"] >= cap).any()
     assert (steps["iterations"] <= cap + 1).all()
+
+
+@pytest.mark.parametrize(("overrides", "problem"), [
+    (["+experiment=bicycle_scheduled"], Problem.scheduled_linear),
+    (["+experiment=bicycle_interpolated"], Problem.scheduled_linear),
+    (["+experiment=bicycle_adaptive"], Problem.linearized),
+    (["+experiment=car_cvxpy"], Problem.nonlinear),
+    (["+experiment=car_cvxpy", "controller.sl=one_pass"], Problem.linearized),
+], ids=["switched", "interpolated", "adaptive", "cvxpy_converge", "cvxpy_one_pass"])
+def test_the_record_says_what_problem_converged_means(run_cfg, overrides, problem) -> None:
+    """A linear-model backend's exact QP is `converged`, and the record tells it apart from
+    an NLP solved to its tolerance by the `problem` it names."""
+    res, out = run_cfg([*overrides, "scenario.t_max=0.4"])
+    s = record.read_summary(out)
+    assert s["status"] != "error", s["error"]
+    assert s[PROBLEM_KEY] == problem.value
+    assert Problem(s[PROBLEM_KEY]) is problem

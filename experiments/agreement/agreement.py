@@ -6,6 +6,8 @@ plan scored by ONE cost function against a tight-tolerance IPOPT reference.
     uv run python experiments/agreement/agreement.py --case bicycle --dt 0.05
     uv run python experiments/agreement/agreement.py --warm           # in each own closed loop
 
+The Zumo NMPC (its NLP with detections, per BUG2 mode) has its own script, ``zumo_nlp.py``.
+
 For each case a closed loop gives a few plausible states (with the scenario's target at that
 time). At each state every backend is reset (cold start: no previous plan, previous input 0)
 and called once through ``controller.step``, as the runner calls it. With ``--warm`` each

@@ -58,6 +58,7 @@ from mpclab.objectives.base import Objective
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.base import Plant
 from mpclab.registry import component
+from mpclab.status import PROBLEM_KEY, Problem
 
 
 class ScheduleMode(StrEnum):
@@ -341,12 +342,24 @@ class ScheduledMPC(Controller):
         """One row per operating point: ``op`` and the scheduling states' values."""
         return pd.DataFrame([{"op": i, **p} for i, p in enumerate(self.grid.points())])
 
+    @property
+    def solved_problem(self) -> Problem:
+        """What a ``converged`` step solved exactly: the QP of the model linearized at the
+        current state (``adaptive``) or of operating points' fixed models (``switched``,
+        ``interpolated``); never the nonlinear OCP, and with the input held over the
+        horizon beyond ``control_horizon``."""
+        if self.mode is ScheduleMode.adaptive:
+            return Problem.linearized
+        return Problem.scheduled_linear
+
     def metrics(self, steps: pd.DataFrame) -> dict[str, Any]:
-        """Switches of the (nearest or active) operating point and the input jumps there."""
+        """What problem was solved; switches of the (nearest or active) operating point and
+        the input jumps there."""
         calls = record.controller_steps(steps)
         ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
         U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
         out: dict[str, Any] = {
+            PROBLEM_KEY: self.solved_problem.value, "control_horizon": self.control_horizon,
             "schedule_mode": self.mode.value, "n_operating_points": len(self.grid),
             "codegen": self.codegen,
         }
