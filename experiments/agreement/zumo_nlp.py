@@ -51,12 +51,12 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nlp_score import REF_FEAS, SAME, VIOL_FLAG, NlpScorer, posed_nlp  # noqa: E402
-from stamp import stamp  # noqa: E402  (beside this script)
 
 from mpclab import record  # noqa: E402
 from mpclab.controllers.base import Controller, ControlStep, StepContext, input_vector  # noqa: E402
 from mpclab.experiment import build_run, compose  # noqa: E402
 from mpclab.instantiate import build  # noqa: E402
+from mpclab.provenance import stamp  # noqa: E402
 from mpclab.sim import Run, sense, simulate  # noqa: E402
 from mpclab.status import SolveStatus  # noqa: E402
 
