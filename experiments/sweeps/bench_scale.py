@@ -46,6 +46,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from mpclab.provenance import stamp
+
 ROOT = Path(__file__).resolve().parents[2]
 SWEEP = ["+experiment=zumo_bug2", "scenario=zumo_random", "recorder=none",
          "figures.enabled=false"]
@@ -132,10 +134,11 @@ def main() -> None:
                 print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
                                   for k, v in res.items()}), flush=True)
     df = pd.DataFrame(results)
+    print(stamp())
     for _, r in df.iterrows():
-        bound = 1.3 * r["closed_loop_sum_s"] / r["workers"]
+        loops = r["closed_loop_sum_s"] / r["workers"]
         print(f"  W={r['workers']}: {r['rows']}/{r['jobs']} rows, wall {r['wall_s']:.1f} s, "
-              f"1.3 x closed loop / W = {bound:.1f} s ({r['wall_s'] / bound * 1.3:.2f} x)")
+              f"closed loops / W = {loops:.1f} s: wall = {r['wall_s'] / loops:.2f} x that")
     print(f"load average: before {df['load_before'].min():.2f}-{df['load_before'].max():.2f}, "
           f"after {df['load_after'].min():.2f}-{df['load_after'].max():.2f}; "
           f"cores {os.cpu_count()}")
