@@ -3,7 +3,8 @@
 :func:`cli` is the one place where an error reaches the user: bad input (a typo, a wrong
 type, an impossible value, a broken file, an unwritable folder) is one short message on
 stderr and exit code 2, with no traceback unless ``HYDRA_FULL_ERROR=1``; a single run that
-ends ``solver_failed`` or ``error`` exits 1; Ctrl-C writes the partial run record and exits 130.
+ends ``solver_failed`` or ``error`` exits 1; Ctrl-C, SIGTERM or SIGHUP write the partial run
+record (a sweep: every running job's, and the tables of the jobs done) and exit 130.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from mpclab.origin import RunOrigin
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
+from mpclab.stopping import Terminated, signals_interrupt
 from mpclab.sweeps.callbacks import failed_sweep, forget_sweep, interrupted_sweep
 
 register_all()  # every component's schema must be in the ConfigStore before composing
@@ -132,13 +134,15 @@ def cli(argv: Sequence[str] | None = None) -> int:
     os.environ[_FULL_ERROR] = "1"
     error: Exception | None = None
     try:
-        main()
+        with signals_interrupt():  # SIGTERM, SIGHUP: as Ctrl-C, the steps so far recorded
+            main()
     except _TaskError as wrapped:
         error = wrapped.error
     except KeyboardInterrupt as exc:
         where = getattr(exc, "out_dir", None)
         sweep = interrupted_sweep()
-        sys.stderr.write("mpclab: interrupted" + (
+        how = f" by {exc.args[0]}" if isinstance(exc, Terminated) and exc.args else ""
+        sys.stderr.write(f"mpclab: interrupted{how}" + (
             f"; {sweep}\n" if sweep else
             f"; the steps so far are in {where} (status 'interrupted')\n" if where else "\n"))
         return EXIT_INTERRUPTED

@@ -72,6 +72,7 @@ from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchd
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
+from mpclab.stopping import Terminated
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
@@ -347,7 +348,9 @@ class PoolLauncher(Launcher):
                     except Exception as exc:  # noqa: BLE001  (e.g. a result that won't pickle)
                         log.error("job %d: its worker could not return it: %r", idx, exc)
                         results[idx] = self._error_row(idx, overrides, exc, {"job": idx})
-        except BaseException:
+        except BaseException as exc:
+            if isinstance(exc, Terminated):  # Ctrl-C reaches the workers too; a signal
+                board.interrupt_running()    # sent to this process alone is passed on
             pool.shutdown(wait=True, cancel_futures=True)
             raise
         finally:

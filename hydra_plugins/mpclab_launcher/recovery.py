@@ -10,6 +10,7 @@ that runs longer than ``hydra.launcher.job_timeout_s``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -68,6 +69,14 @@ class JobBoard:
 
     def started(self, slot: int) -> bool:
         return self.cells[2 * slot] != 0
+
+    def interrupt_running(self) -> None:
+        """Send SIGINT to the worker of every running job (it ends ``interrupted``, its
+        steps so far recorded, as on Ctrl-C)."""
+        for pid in {int(self.cells[2 * slot]) for slot in range(len(self.cells) // 2)}:
+            if pid > 0:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGINT)
 
     def overdue(self, timeout_s: float) -> list[tuple[int, int]]:
         """``(slot, pid)`` of every job running for longer than ``timeout_s``."""

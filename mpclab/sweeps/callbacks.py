@@ -57,8 +57,11 @@ def count_jobs(config: DictConfig) -> int | None:
 
 
 def interrupted_sweep() -> str | None:
-    """What to tell a user who interrupted the sweep this process was launching (how many
-    jobs are recorded, how to resume, how to tabulate); None outside a sweep."""
+    """Write the tables of the jobs done so far of the sweep this process was launching, and
+    say what to tell a user who interrupted it (how many jobs are recorded, where the tables
+    are, how to resume); None outside a sweep."""
+    from mpclab.sweeps.report import write_report  # matplotlib: only when a sweep ends
+
     if not _LAUNCHING:
         return None
     sweep_dir = _LAUNCHING[-1]
@@ -69,9 +72,14 @@ def interrupted_sweep() -> str | None:
         total = None
     done = len(stream.read(state / PROGRESS_FILE))
     of = f" of {total}" if total else ""
-    return (f"{done}{of} jobs of the sweep in {sweep_dir} are done and recorded; the same "
-            "command resumes it (skipping them), and `python -m mpclab.tables "
-            f"{sweep_dir}` makes the tables so far")
+    try:
+        write_report([sweep_dir], sweep_dir, figure=False)
+        tables = f"their tables (and the interrupted jobs' rows) are in {sweep_dir}"
+    except Exception as exc:  # noqa: BLE001  (the rows stay; the tool makes them later)
+        log.warning("sweep: no tables written (%s)", exc)
+        tables = f"`python -m mpclab.tables {sweep_dir}` makes the tables so far"
+    return (f"{done}{of} jobs of the sweep in {sweep_dir} are done and recorded; {tables}; "
+            "the same command resumes it (skipping them)")
 
 
 def forget_sweep() -> None:
