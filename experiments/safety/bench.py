@@ -4,11 +4,13 @@
         --variant study --variant constrained controller.collision_distance=0.065
 
 Every variant runs on every seed of every scenario (paired: the same layouts for all),
-interleaved seed by seed so that a busy machine slows every variant alike. Per variant the table gives the success
-(arrival) rate and the collision rate, each with its exact 95 % interval (Clopper-Pearson),
-time-outs, stalls, the least clearance of any run (continuous time) and the CPU time per
-controller call (median and p95, pooled over every call; CPU time, not wall time, so other
-processes on the machine do not inflate it). Seeds that collided or timed out are listed.
+interleaved seed by seed so that a busy machine slows every variant alike. Per variant the
+table gives the success (arrival) rate and the collision rate, each with its exact 95 %
+interval (Clopper-Pearson), time-outs, stalls, the least clearance of any run (continuous
+time) and the CPU time per controller call (median and p95, pooled over every call; CPU
+time, not wall time, so other processes on the machine do not inflate it). Seeds that
+collided or timed out are listed; with several scenarios, a second table gives each
+scenario's outcome per variant.
 The Markdown (``--md``) is stamped with the command, the git commit, the CPU model, the
 cores and the date.
 """
@@ -51,6 +53,7 @@ class Outcome:
     scenario: str
     seed: int
     status: str
+    arrival_time_s: float | None
     min_clearance_m: float | None
     cpu_ms: np.ndarray  # CPU time of every controller call [ms]
     converged: int
@@ -65,7 +68,8 @@ def run_one(job: tuple[str, str, int, list[str], str]) -> Outcome:
     calls = record.controller_steps(res.steps)
     cpu = calls[CPU_COLUMN].to_numpy(dtype=float) * 1e3
     s = res.summary
-    return Outcome(variant, scenario, seed, s["status"], s["min_clearance_m"], cpu,
+    return Outcome(variant, scenario, seed, s["status"], s["arrival_time_s"],
+                   s["min_clearance_m"], cpu,
                    int(s.get("solves_converged", 0)), int(s["n_steps"]))
 
 
@@ -107,6 +111,30 @@ def table(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
                 where = ", ".join(f"{sc} {seed}" for sc, seed in seeds)
                 notes.append(f"- {name}, {st}: {where}")
     return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def by_scenario(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
+    """One row per scenario, one column per variant: its run's status (arrival time, least
+    clearance) for one seed, counts for several."""
+    scenarios = list(dict.fromkeys(o.scenario for o in outcomes))
+    lines = ["| scenario | " + " | ".join(variants) + " |", "|" + "---|" * (1 + len(variants))]
+    for scen in scenarios:
+        cells = []
+        for name in variants:
+            rows = [o for o in outcomes if o.scenario == scen and o.variant == name]
+            if len(rows) == 1:
+                o = rows[0]
+                when = f" {o.arrival_time_s:.1f} s" if o.arrival_time_s is not None else ""
+                clear = ("" if o.min_clearance_m is None
+                         else f", {1e3 * o.min_clearance_m:.1f} mm")
+                cells.append(f"{o.status}{when}{clear}")
+            else:
+                n = len(rows)
+                counts = {st: sum(o.status == st for o in rows)
+                          for st in ("arrived", "collision", "timeout", "stalled")}
+                cells.append(", ".join(f"{c}/{n} {st}" for st, c in counts.items() if c))
+        lines.append(f"| {scen} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def stamp(argv: Sequence[str]) -> str:
@@ -170,7 +198,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = "\n".join([
         f"{args.experiment} on {args.scenario}, {len(seeds)} seeds "
         f"({args.seeds}){', ' + ' '.join(args.set) if args.set else ''}; {over}", "",
-        table(outcomes, names), "", stamp(argv), ""])
+        table(outcomes, names), "",
+        *([by_scenario(outcomes, names), ""] if len(scenarios) > 1 else []),
+        stamp(argv), ""])
     print(text)
     if args.md:
         args.md.parent.mkdir(parents=True, exist_ok=True)
