@@ -346,7 +346,8 @@ def _clearance_summary(steps: pd.DataFrame, guard: ContinuousClearance) -> dict[
         return {"min_clearance_m": None, "min_clearance_sampled_m": None,
                 "min_clearance_tol_m": None}
     return {"min_clearance_m": float(np.nanmin(both)),
-            "min_clearance_sampled_m": float(np.nanmin(sampled)),
+            "min_clearance_sampled_m": (float(np.nanmin(sampled))
+                                        if np.isfinite(sampled).any() else None),
             "min_clearance_tol_m": guard.tolerance_m}
 
 
