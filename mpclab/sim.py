@@ -23,6 +23,7 @@ from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
 from mpclab.supervisors.base import NoSupervisor, Supervisor
+from mpclab.world.clearance import ContinuousClearance
 from mpclab.world.realism import SimWorld, Timing
 from mpclab.world.scenario import Scenario
 
@@ -33,6 +34,8 @@ STATUSES = ("arrived", "stalled", "timeout", "collision", "error", "solver_faile
             "interrupted")
 #: the controller call's CPU time (this thread), beside its wall time ``solve_time_s``
 CPU_COLUMN = "solve_cpu_s"
+#: the least clearance over the period from a row's ``t`` to the next (continuous time)
+PATH_CLEARANCE = "clearance_path_m"
 
 
 class RunInterrupted(KeyboardInterrupt):
@@ -82,17 +85,19 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     ctrl.reset(x)
     sup.reset(x, scen.goal)
     log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world)
-    status, error, k = "error", None, 0
+    # the closest approach between samples, along the path the simulated plant drives
+    guard = ContinuousClearance(world.plant, scen.obstacles, scen.robot_radius)
+    status, error, k, touched = "error", None, 0, False
     n_max = int(np.floor(scen.t_max / dt + 1e-9))
     rec.start(run)
     try:
         while True:
             t = k * dt
+            if touched or scen.collided(x):  # before arrival: touching on the way fails
+                status = "collision"
+                break
             if scen.arrived(x):
                 status = "arrived"
-                break
-            if scen.collided(x):
-                status = "collision"
                 break
             if scen.stalled(log.t, log.xs):
                 status = "stalled"
@@ -114,7 +119,10 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                 cs.info["x_measured"] = measured
             if world.delayed:
                 cs.info["latency_s"] = timing.latency_s
-            log.add(t, x, cs, solve_time, mode, scen.clearance(x), measured, timing)
+            path_gap = guard.interval(x, world.pieces(timing))
+            touched = path_gap < 0
+            log.add(t, x, cs, solve_time, mode, (scen.clearance(x), path_gap), measured,
+                    timing)
             rec.log_step(k, t, x, cs, ctx)
             x = world.advance(x, timing)
             if not np.all(np.isfinite(x)):
@@ -129,7 +137,8 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     t_end = k * dt
     log.final(t_end, x, scen.clearance(x))
     steps, horizons = log.tables()
-    summary = _summary(steps, status, error, t_end, scen) | _world_summary(steps, world)
+    summary = (_summary(steps, status, error, t_end, scen) | _world_summary(steps, world)
+               | _clearance_summary(steps, guard))
     rec.finish(x, t_end, summary)
     result = RunResult(steps, horizons, summary)
     if status == "interrupted":
@@ -175,13 +184,16 @@ class _StepLog:
         self.xs: list[np.ndarray] = []
         self.us: list[np.ndarray] = []
         self.meta: list[tuple[float, str, bool, str, float, float, str, float]] = []
+        self.path_gap: list[float] = []
         self.x_pred: list[np.ndarray] = []
         self.u_pred: list[np.ndarray] = []
 
     def add(
         self, t: float, x: np.ndarray, cs: ControlStep, solve_time: float, mode: str,
-        clearance: float, measured: np.ndarray | None = None, timing: Timing | None = None,
+        clearance: tuple[float, float], measured: np.ndarray | None = None,
+        timing: Timing | None = None,
     ) -> None:
+        """``clearance``: at ``t``, and the least over the period that starts at ``t``."""
         if self.noisy:
             self.measured.append(np.asarray(measured, dtype=float).copy())
         if self.delayed:
@@ -190,8 +202,9 @@ class _StepLog:
         self.xs.append(x.copy())
         self.us.append(np.asarray(cs.u, dtype=float).copy())
         iters = np.nan if cs.iterations is None else float(cs.iterations)
-        self.meta.append((solve_time, str(cs.status), cs.fallback, mode, cs.cost, clearance,
+        self.meta.append((solve_time, str(cs.status), cs.fallback, mode, cs.cost, clearance[0],
                           cs.solver_status, iters))
+        self.path_gap.append(clearance[1])
         self.x_pred.append(np.asarray(cs.x_pred, dtype=float))
         self.u_pred.append(np.asarray(cs.u_pred, dtype=float))
         for key, values in self.extra.items():
@@ -202,6 +215,7 @@ class _StepLog:
         self.xs.append(x.copy())
         self.us.append(np.full(self.plant.nu, np.nan))
         self.meta.append((np.nan, record.FINAL, False, "", np.nan, clearance, "", np.nan))
+        self.path_gap.append(np.nan)
         for values in self.extra.values():
             values.append(None)
 
@@ -221,6 +235,7 @@ class _StepLog:
         steps["mode"] = pd.Series(mode, dtype="string")
         steps["cost"] = np.asarray(cost, dtype=float)
         steps["clearance_m"] = np.asarray(clearance, dtype=float)
+        steps[PATH_CLEARANCE] = np.asarray(self.path_gap, dtype=float)
         steps["solver_status"] = pd.Series(raw, dtype="string")
         steps["iterations"] = np.asarray(iters, dtype=float)  # NaN: the solver has no count
         for key, values in self.extra.items():
@@ -288,7 +303,6 @@ def _summary(
     cpu = pd.to_numeric(calls[CPU_COLUMN], errors="coerce").to_numpy(dtype=float)
     total = float(solve.sum())
     ms = solve * 1e3
-    clearance = steps["clearance_m"].to_numpy()
     counts = solve_counts(calls["status"])
     failures = int(sum(n for st, n in counts.items() if st not in USABLE))
     iters = calls["iterations"].dropna().to_numpy()
@@ -311,7 +325,6 @@ def _summary(
         # CPU over wall time of the controller calls: about 1 on an idle core, lower when
         # the process waited for a core (a loaded machine) and its wall times are inflated
         "compute_cpu_share": float(np.nansum(cpu) / total) if total > 0 else None,
-        "min_clearance_m": float(np.nanmin(clearance)) if np.isfinite(clearance).any() else None,
         "solver_failures": failures,
         "converged_fraction": counts[SolveStatus.converged] / len(calls) if len(calls) else None,
         **{SOLVE_KEYS[st]: n for st, n in counts.items()},
@@ -321,6 +334,21 @@ def _summary(
                                 .astype(float), strict=True)),
         "error": error,
     }
+
+
+def _clearance_summary(steps: pd.DataFrame, guard: ContinuousClearance) -> dict[str, Any]:
+    """``min_clearance_m`` in continuous time: the least of the sampled clearances and of
+    every period's path (``None`` without obstacles); the sampled least beside it, and how
+    far the path's could lie above the exact one (0: exact arcs)."""
+    sampled = steps["clearance_m"].to_numpy(dtype=float)
+    both = np.concatenate([sampled, steps[PATH_CLEARANCE].to_numpy(dtype=float)])
+    if not np.isfinite(both).any():
+        return {"min_clearance_m": None, "min_clearance_sampled_m": None,
+                "min_clearance_tol_m": None}
+    return {"min_clearance_m": float(np.nanmin(both)),
+            "min_clearance_sampled_m": (float(np.nanmin(sampled))
+                                        if np.isfinite(sampled).any() else None),
+            "min_clearance_tol_m": guard.tolerance_m}
 
 
 def _world_summary(steps: pd.DataFrame, world: SimWorld) -> dict[str, Any]:

@@ -65,3 +65,34 @@ def test_robustness_rows_and_figure(tmp_path):
     assert t.loc[10, "arrival_median_s"] == pytest.approx(3.1)
     path = plot_robustness(group_table(df), "sim.latency_scale", tmp_path / "r.png")
     assert path.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("k, n, lo, hi", [
+    (0, 1000, 0.0, 0.00368),     # the "rule of three" neighbourhood: 3.69 / n
+    (3, 1000, 0.00062, 0.00874),
+    (993, 1000, 0.98563, 0.99718),
+])
+def test_known_values(k, n, lo, hi):
+    got = clopper_pearson(k, n)
+    assert got == pytest.approx((lo, hi), abs=6e-6)
+
+
+def test_collision_rate_beside_the_success_rate(tmp_path):
+    import pandas as pd
+
+    from mpclab.tables import group_table
+
+    status = ["arrived"] * 6 + ["collision", "collision", "timeout", "stalled"]
+    df = pd.DataFrame({
+        "backend": ["casadi"] * 10, "scenario": ["zumo_random"] * 10, "status": status,
+        "seed": list(range(10)), "arrival_time_s": [3.0] * 6 + [None] * 4,
+        "min_clearance_m": [0.02, 0.03, 0.01, 0.05, 0.04, 0.02, -0.004, -0.001, 0.01, 0.02],
+        "run_dir": [str(tmp_path / f"run{i}") for i in range(10)],
+    })
+    df.attrs["params"] = ["seed"]
+    g = group_table(df).iloc[0]
+    assert (g["runs"], g["arrived"], g["collisions"], g["timeouts"]) == (10, 6, 2, 1)
+    assert g["collision_rate"] == pytest.approx(0.2)
+    assert (g["collision_low"], g["collision_high"]) == pytest.approx(clopper_pearson(2, 10))
+    assert (g["success_low"], g["success_high"]) == pytest.approx(clopper_pearson(6, 10))
+    assert g["min_clearance_m"] == pytest.approx(-0.004)

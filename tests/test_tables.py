@@ -226,3 +226,33 @@ def test_solve_times_are_the_controller_steps_of_the_log(tmp_path: Path) -> None
     got = record.read_solve_times_s(tmp_path)
     assert len(got) == len(want) == 4
     assert np.allclose(got, want, equal_nan=True)
+
+
+def test_safety_bench_table_pairs_rates_and_lists_failed_seeds() -> None:
+    """experiments/safety/bench.py: per variant, counts, both intervals and the failed seeds."""
+    import importlib.util
+    import sys
+
+    from mpclab.stats import clopper_pearson
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "safety" / "bench.py"
+    spec = importlib.util.spec_from_file_location("safety_bench", path)
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules["safety_bench"] = bench  # its dataclass looks its module up
+    spec.loader.exec_module(bench)
+    assert bench.seeds_of("3:6") == [3, 4, 5] and bench.seeds_of("94,284") == [94, 284]
+
+    def outcome(variant, seed, status, clearance):
+        return bench.Outcome(variant, "zumo_random", seed, status,
+                             3.0 if status == "arrived" else None, clearance,
+                             np.array([1.0, 2.0, 3.0]), 3, 3)
+
+    outcomes = [outcome("a", 0, "arrived", 0.01), outcome("a", 1, "collision", -0.002),
+                outcome("a", 2, "timeout", 0.02), outcome("b", 0, "arrived", 0.012),
+                outcome("b", 1, "arrived", 0.013), outcome("b", 2, "stalled", 0.02)]
+    text = bench.table(outcomes, ["a", "b"])
+    lo, hi = clopper_pearson(1, 3)
+    assert f"| a | 3 | 1 | 0.333 [{lo:.3f}, {hi:.3f}] | 1 | 0.3333 [{lo:.4f}, {hi:.4f}] | 1 | 0 |" \
+        in text
+    assert "| b | 3 | 2 | 0.667" in text and "| -2.0 |" in text and "| 12.0 |" in text
+    assert "- a, collision: zumo_random 1" in text and "- b, stalled: zumo_random 2" in text

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -25,8 +25,12 @@ import pandas as pd
 import yaml
 
 from mpclab import record, stream
-from mpclab.stats import clopper_pearson
-from mpclab.status import SOLVE_KEYS, SolveStatus
+from mpclab.tables.groups import (
+    _numbers,
+    _step_times_ms,
+    group_keys,
+    group_table,
+)
 
 #: PyYAML's safe loader, libyaml's where PyYAML has it (5-10 times faster)
 _SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -61,8 +65,6 @@ class XAxis(StrEnum):
 
 #: where a sweep streams its rows, relative to the sweep folder
 ROWS_FILE = Path(".mpclab") / "rows.jsonl"
-#: parameters never grouped by: repetitions of the same configuration
-NOT_GROUPED = ("seed",)
 #: a run's controller calls got less than this share of a core (CPU / wall time)
 CONTENDED_SHARE = 0.9
 
@@ -270,13 +272,6 @@ def contended(df: pd.DataFrame) -> pd.Series:
     return flag.astype("boolean").where(share.notna(), pd.NA)
 
 
-def _numbers(df: pd.DataFrame, col: str) -> pd.Series:
-    """Column ``col`` as floats (all NaN if ``df`` has no such column)."""
-    if col not in df:
-        return pd.Series(np.nan, index=df.index, dtype=float)
-    return pd.to_numeric(df[col], errors="coerce").astype(float)
-
-
 def _tidy(df: pd.DataFrame) -> pd.DataFrame:
     """Make every column one type, so parquet can store it: numbers, or text."""
     for col in df.columns:
@@ -300,84 +295,6 @@ def _backend(df: pd.DataFrame, params: list[str]) -> pd.Series:
         solver = df["controller.solver"].fillna("").astype(str)
         backend = backend.where(solver == "", backend + ":" + solver)
     return backend
-
-
-def _step_times_ms(run_dirs: Iterable[str]) -> np.ndarray:
-    """Every controller call's solve time (ms) of the runs, pooled (final rows left out)."""
-    parts = []
-    for run_dir in run_dirs:
-        if (Path(run_dir) / record.STEPS).is_file():
-            parts.append(record.read_solve_times_s(Path(run_dir)) * 1e3)
-    return np.concatenate(parts) if parts else np.array([])
-
-
-def group_keys(df: pd.DataFrame) -> list[str]:
-    """What the grouped table groups by: backend, scenario and every other parameter the
-    sweep varies, except the seed (a group is the repetitions of one configuration)."""
-    named = {"controller", "scenario", *NOT_GROUPED}
-    if "controller.solver" in df and "controller.solver" in df.attrs.get("params", []):
-        named.add("controller.solver")  # in ``backend`` when it varies
-    swept = [p for p in df.attrs.get("params", []) if p in df and p not in named
-             and df[p].astype(str).nunique(dropna=False) > 1]
-    return ["backend", "scenario", *swept]
-
-
-def group_table(
-    df: pd.DataFrame, step_ms: Mapping[str, np.ndarray] | None = None,
-) -> pd.DataFrame:
-    """Per group (:func:`group_keys`): runs, success rate with its exact 95 % interval
-    (Clopper-Pearson: ``success_low``, ``success_high``), median arrival, median and p95
-    compute per controller call (wall and CPU), and runs flagged :func:`contended`.
-
-    Step compute pools every controller call of the group's runs, from ``step_ms`` (run folder
-    -> ms, as :func:`collect_runs` gives) or else from each run's ``steps.parquet``.
-    """
-    keys = group_keys(df)
-    step_ms = step_ms or {}
-    rows = []
-    for values, g in df.groupby(keys, dropna=False, sort=True):
-        missing = [r for r in g["run_dir"] if r not in step_ms]
-        parts = [step_ms[r] for r in g["run_dir"] if r in step_ms]
-        ms = np.concatenate([*parts, _step_times_ms(missing)])
-        arrived = g["status"] == "arrived"
-        flagged = g["contended"] if "contended" in g else pd.Series(dtype="boolean")
-        rows.append({
-            **dict(zip(keys, values, strict=True)),
-            "runs": len(g),
-            "arrived": int(arrived.sum()),
-            "errors": int((g["status"] == "error").sum()),
-            "success_rate": float(arrived.mean()),
-            **dict(zip(("success_low", "success_high"),
-                       clopper_pearson(int(arrived.sum()), len(g)), strict=True)),
-            "arrival_median_s": float(g.loc[arrived, "arrival_time_s"].median())
-            if arrived.any() else None,
-            "step_median_ms": float(np.median(ms)) if ms.size else None,
-            "step_p95_ms": float(np.percentile(ms, 95)) if ms.size else None,
-            "step_cpu_median_ms": float(_numbers(g, "compute_cpu_median_ms").median())
-            if _numbers(g, "compute_cpu_median_ms").notna().any() else None,
-            "contended_runs": int(flagged.fillna(False).sum()),
-            **_solve_shares(g),
-        })
-    return pd.DataFrame(rows, columns=[
-        *keys, "runs", "arrived", "errors", "success_rate", "success_low", "success_high",
-        "arrival_median_s",
-        "step_median_ms", "step_p95_ms", "step_cpu_median_ms", "contended_runs",
-        "converged_fraction", *SOLVE_COUNTS,
-    ])
-
-
-#: per-status solve counts of summary.json, summed over a group
-SOLVE_COUNTS = tuple(SOLVE_KEYS.values())
-
-
-def _solve_shares(g: pd.DataFrame) -> dict[str, Any]:
-    """A group's solves by status (summed) and the converged share of all of them."""
-    counts = {c: int(pd.to_numeric(g[c], errors="coerce").fillna(0).sum()) if c in g else 0
-              for c in SOLVE_COUNTS}
-    total = sum(counts.values())
-    converged = counts[SOLVE_KEYS[SolveStatus.converged]]
-    return {"converged_fraction": converged / total if total else None,
-            **counts}
 
 
 def markdown(df: pd.DataFrame, groups: pd.DataFrame | None = None) -> str:

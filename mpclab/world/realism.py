@@ -188,18 +188,23 @@ class SimWorld:
                 held = self._plan[self._plan_age]
         return Timing(tau, True, held)
 
-    def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
-        """The true state one control period later: the applied input until the switch, the
-        new one after it (a missed deadline: one input for the whole period), then the
-        disturbance."""
-        plant, dt = self.plant, self.dt
-        tau = timing.latency_s
+    def pieces(self, timing: Timing) -> list[tuple[FloatArray, float]]:
+        """The inputs that act over the coming control period, in order, with how long
+        each holds ``[(input, duration [s])]``: the applied input until the switch, the new
+        one after it (a missed deadline: one input for the whole period)."""
+        dt, tau = self.dt, timing.latency_s
         if timing.missed or tau <= 0.0:
-            x = plant.step(x, timing.applied, dt)
-        elif tau >= dt:  # exactly at the deadline: the new input acts from the next period
-            x = plant.step(x, self.applied, dt)
-        else:
-            x = plant.step(plant.step(x, self.applied, tau), timing.applied, dt - tau)
+            return [(timing.applied, dt)]
+        if tau >= dt:  # exactly at the deadline: the new input acts from the next period
+            return [(self.applied, dt)]
+        return [(self.applied, tau), (timing.applied, dt - tau)]
+
+    def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
+        """The true state one control period later: the :meth:`pieces` integrated one after
+        the other, then the disturbance."""
+        for u, duration in self.pieces(timing):
+            x = self.plant.step(x, u, duration)
+        dt = self.dt
         self.applied = timing.applied
         if self._walk:
             x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)

@@ -101,6 +101,8 @@ class Scenario:
 
     #: obstacle discs ``(n, 3)``: centre x, centre y, radius [m] (none here)
     obstacles: FloatArray = np.zeros((0, 3))
+    #: the vehicle is a disc of this radius for :meth:`clearance` [m]
+    robot_radius: float = 0.0
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         """Scenario-specific figures for ``summary.json`` computed from the step log."""

@@ -11,7 +11,8 @@ import numpy as np
 from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.registry import component
-from mpclab.world.obstacles import RandomLayoutConf, WallConf, layout, random_walls
+from mpclab.world.obstacles import WallConf, layout
+from mpclab.world.random_layout import RandomLayoutConf, random_layout
 from mpclab.world.scenario import FloatArray, Scenario, ScenarioConf
 from mpclab.world.sensor import RangeSensor, SensorConf
 
@@ -42,6 +43,12 @@ class ObstacleScenarioConf(ScenarioConf):
     start_clearance: float = 0.0
 
 
+def _draws_anything(random: Mapping[str, Any]) -> bool:
+    """Whether a ``random`` section places any obstacle."""
+    return any(float(random.get(key, 0) or 0) > 0
+               for key in ("n_walls", "n_discs", "goal_wall", "corridor"))
+
+
 @component("scenario", "obstacles", ObstacleScenarioConf)
 class ObstacleScenario(Scenario):
     """Start, goal and a world of disc obstacles seen through a range sensor.
@@ -59,7 +66,8 @@ class ObstacleScenario(Scenario):
     walls
         Rows of discs ``[{start: [x, y], end: [x, y], spacing: s}, ...]``.
     random
-        Random walls added from ``rng`` (see :class:`~mpclab.world.obstacles.RandomLayoutConf`).
+        Random walls and discs added from ``rng``, redrawn until solvable (see
+        :class:`~mpclab.world.random_layout.RandomLayoutConf`).
     robot_radius
         The robot is a disc of this radius; overlapping an obstacle is a collision [m].
     sensor
@@ -107,12 +115,14 @@ class ObstacleScenario(Scenario):
         number(obstacle_radius, "scenario.obstacle_radius", above=0)
         spacing = min((float(w.get("spacing", 0.05)) for w in walls), default=0.05)
         obs = layout(discs, walls, obstacle_radius)
-        if random is not None and int(random.get("n_walls", 0)) > 0:
+        self.extent = [float(v) for v in extent]
+        if random is not None and _draws_anything(random):
             if rng is None:
-                raise ConfigError(f"scenario {name!r}: random walls need the run's rng")
-            extra = random_walls(
+                raise ConfigError(f"scenario {name!r}: random obstacles need the run's rng")
+            extra = random_layout(
                 rng, random, obstacle_radius, spacing,
                 start=self.x0[self._ip], goal=self.goal[self._ip],
+                robot_radius=self.robot_radius, extent=self.extent, fixed=obs,
             )
             obs = np.concatenate([obs, extra], axis=0)
         #: obstacle discs (n, 3): centre x, centre y, radius [m]
@@ -123,7 +133,6 @@ class ObstacleScenario(Scenario):
             raise ConfigError(
                 f"scenario.stall.window_s must be > 0, got {self.stall_rule.window_s}"
             )
-        self.extent = [float(v) for v in extent]
         if start_region:
             if rng is None:
                 raise ConfigError(f"scenario {name!r}: a random start needs the run's rng")
