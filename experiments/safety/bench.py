@@ -18,11 +18,6 @@ cores and the date.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import os
-import platform
-import shlex
-import subprocess
 import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -33,6 +28,7 @@ import numpy as np
 
 from mpclab import record
 from mpclab.experiment import compose, run_experiment
+from mpclab.provenance import stamp
 from mpclab.sim import CPU_COLUMN
 from mpclab.stats import clopper_pearson
 
@@ -135,31 +131,6 @@ def by_scenario(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
                 cells.append(", ".join(f"{c}/{n} {st}" for st, c in counts.items() if c))
         lines.append(f"| {scen} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
-
-def stamp(argv: Sequence[str]) -> str:
-    """Command, commit (``+dirty`` with uncommitted changes), CPU model, cores, date."""
-    def git(*args: str) -> str:
-        try:
-            return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
-                                  check=True).stdout.strip()
-        except (OSError, subprocess.CalledProcessError):
-            return "?"
-
-    commit = git("rev-parse", "--short", "HEAD")
-    if git("status", "--porcelain", "--untracked-files=no"):
-        commit += "+dirty"
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    date = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    command = "uv run python " + " ".join(shlex.quote(a) for a in argv)
-    return (f"`{command}`\n\ncommit {commit}; {cpu}; {os.cpu_count()} cores; {date}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
