@@ -141,7 +141,8 @@ def cli(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         where = getattr(exc, "out_dir", None)
         sweep = interrupted_sweep()
-        how = f" by {exc.args[0]}" if isinstance(exc, Terminated) and exc.args else ""
+        by = getattr(exc, "how", exc.args[0] if isinstance(exc, Terminated) and exc.args else "")
+        how = f" by {by}" if by and by != "Ctrl-C" else ""
         sys.stderr.write(f"mpclab: interrupted{how}" + (
             f"; {sweep}\n" if sweep else
             f"; the steps so far are in {where} (status 'interrupted')\n" if where else "\n"))

@@ -22,6 +22,7 @@ from mpclab.controllers.base import Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
+from mpclab.stopping import Terminated
 from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.clearance import ContinuousClearance
 from mpclab.world.realism import SimWorld, Timing
@@ -39,11 +40,14 @@ PATH_CLEARANCE = "clearance_path_m"
 
 
 class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`simulate`, carrying the partial result (status ``interrupted``)."""
+    """Ctrl-C (or SIGTERM, SIGHUP) during :func:`simulate`, carrying the partial result
+    (status ``interrupted``)."""
 
-    def __init__(self, result: RunResult) -> None:
+    def __init__(self, result: RunResult, how: str = "Ctrl-C") -> None:
         super().__init__("interrupted")
         self.result = result
+        #: what stopped it: ``Ctrl-C`` or the signal's name
+        self.how = how
 
 
 @dataclass
@@ -132,8 +136,9 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                 progress(k * dt, scen.t_max)
     except Exception as exc:  # the record is still written, with the error in it
         status, error = "error", f"{type(exc).__name__}: {exc}"
-    except KeyboardInterrupt:
-        status, error = "interrupted", "KeyboardInterrupt (Ctrl-C)"
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (mpclab.stopping.Terminated)
+        stopped_by = exc.args[0] if isinstance(exc, Terminated) and exc.args else "Ctrl-C"
+        status, error = "interrupted", f"KeyboardInterrupt ({stopped_by})"
     t_end = k * dt
     log.final(t_end, x, scen.clearance(x))
     steps, horizons = log.tables()
@@ -142,7 +147,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     rec.finish(x, t_end, summary)
     result = RunResult(steps, horizons, summary)
     if status == "interrupted":
-        raise RunInterrupted(result)
+        raise RunInterrupted(result, stopped_by)
     return result
 
 

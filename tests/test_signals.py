@@ -46,9 +46,10 @@ def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
     assert proc.wait(timeout=60) == 130
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["n_steps"] > 0
+    assert "SIGTERM" in summary["error"]
     steps = pd.read_parquet(run_dir / "steps.parquet")
     assert len(steps) >= summary["n_steps"]
-    assert "interrupted" in (tmp_path / "console.txt").read_text()
+    assert "interrupted by SIGTERM" in (tmp_path / "console.txt").read_text()
 
 
 def test_sigterm_ends_a_sweep_that_resumes(tmp_path: Path) -> None:
