@@ -9,6 +9,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
@@ -207,8 +208,10 @@ def test_ctrl_c_in_a_sweep_says_how_to_resume(monkeypatch, capsys, tmp_path: Pat
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert f"1 of 3 jobs of the sweep in {tmp_path} are done" in err, err
-    assert "the same command resumes it" in err and f"python -m mpclab.tables {tmp_path}" in err
+    assert "the same command resumes it" in err and "their tables" in err
     assert record.read_summary(tmp_path / "1")["status"] == "interrupted"
+    rows = pd.read_parquet(tmp_path / "summary.parquet")  # the tables of what was done
+    assert len(rows) == 2 and (rows["status"] == "interrupted").sum() == 1
     # the next command in this process is no sweep: its own message
     inject(monkeypatch, CvxpyMPC, {3: "ctrl-c"})
     assert cli(["+experiment=car_cvxpy", "+ci=smoke", f"hydra.run.dir={tmp_path / 'run'}"]) \
