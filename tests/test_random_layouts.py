@@ -130,3 +130,18 @@ def test_curated_hard_layouts_are_solvable(scenario):
     scen = _layout(scenario, 0)
     assert connected(scen.obstacles, scen.x0[:2], scen.goal[:2], scen.robot_radius,
                      scen.extent, cell=0.002, margin=0.0)
+
+
+def test_a_layout_can_be_required_to_pass_with_a_clearance():
+    # the goal in a ring of discs open by 0.12 m between surfaces: the robot disc fits (0.10)
+    # but not while keeping 15 mm from both sides (0.13)
+    half = np.arcsin(0.11 / 0.2)  # the two discs beside the opening: centres 0.22 m apart
+    angles = np.linspace(np.pi / 2 + half, 5 * np.pi / 2 - half, 40)  # facing the start (+y)
+    ring = np.array([[0.4 + 0.2 * np.cos(a), 0.4 + 0.2 * np.sin(a), R] for a in angles])
+    conf = {"n_walls": 0, "max_layouts": 3}
+    assert connected(ring, START, GOAL, R, EXTENT)
+    random_layout(np.random.default_rng(0), conf, R, 0.05, START, GOAL, robot_radius=R,
+                  extent=EXTENT, fixed=ring)
+    with pytest.raises(ConfigError, match="clearance 0.015"):
+        random_layout(np.random.default_rng(0), {**conf, "clearance": 0.015}, R, 0.05,
+                      START, GOAL, robot_radius=R, extent=EXTENT, fixed=ring)

@@ -48,7 +48,8 @@ class RandomLayoutConf:
     n_discs: int = 0            # isolated discs ...
     disc_radius: list[float] = field(default_factory=lambda: [0.015, 0.05])  # [m]
     disc_on_path: float = 0.0   # probability that a disc sits near the start-goal segment
-    solvable: bool = True       # redraw a layout the robot cannot drive through
+    solvable: bool = True       # redraw a layout the robot cannot drive through ...
+    clearance: float = 0.0      # ... keeping this much from every obstacle [m]
     cell: float = 0.005         # grid cell of that check [m]
     max_layouts: int = 500
 
@@ -75,11 +76,13 @@ def random_layout(
         if discs is None:  # a part found no place among the others: draw again
             continue
         if not c.solvable or connected(np.concatenate([fixed, discs]), start, goal,
-                                       robot_radius, extent, cell=float(c.cell)):
+                                       robot_radius + float(c.clearance), extent,
+                                       cell=float(c.cell)):
             return discs
     raise ConfigError(
         f"scenario.random: no layout of {c.max_layouts} drawn places every part and lets "
-        f"the robot (radius {robot_radius:g} m) reach the goal; lower n_walls / n_discs / "
+        f"the robot (radius {robot_radius:g} m, clearance {c.clearance:g} m) reach the goal; "
+        "lower n_walls / n_discs / "
         "min_gap or widen the gaps"
     )
 
