@@ -46,3 +46,23 @@ def test_an_indexed_build_writes_its_source_once(tmp_path, monkeypatch) -> None:
     assert a == b and a.is_file() and len(written) == 1
     # another key of the same source: written again, the same library found by its source
     assert build.compile_indexed("twice v2", source, "t", ["-O0"]) == a and len(written) == 2
+
+
+@pytest.mark.skipif(build.find_compiler() is None, reason="needs a C compiler")
+def test_a_compile_announces_itself_before_it_starts(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path))
+    said_before: list[str] = []
+    real_run = build.subprocess.run
+
+    def run(*args, **kwargs):  # the compiler starts: what was said by then
+        said_before.append(capsys.readouterr().err)
+        return real_run(*args, **kwargs)
+
+    monkeypatch.setattr(build.subprocess, "run", run)
+    build.compile_shared(SOURCE, "tiny", ["-O1"])
+    assert len(said_before) == 1
+    assert "mpclab: compiling tiny" in said_before[0] and "roughly" in said_before[0]
+    assert str(tmp_path) in said_before[0]  # where the result is kept
+    assert "compiled tiny in" in capsys.readouterr().err
+    build.compile_shared(SOURCE, "tiny", ["-O1"])  # cached: nothing to say
+    assert capsys.readouterr().err == "" and len(said_before) == 1
