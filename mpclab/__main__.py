@@ -10,7 +10,6 @@ record (a sweep: every running job's, and the tables of the jobs done) and exit 
 from __future__ import annotations
 
 import gc
-import json
 import logging
 import os
 import sys
@@ -96,19 +95,42 @@ def _task(cfg: DictConfig) -> dict:
         except RunInterrupted as exc:  # its partial record is written: say where
             exc.out_dir = out_dir
             raise
-    keys = ("status", "arrival_time_s", "n_steps", "compute_median_ms", "rtf", "solver_failures",
-            "converged_fraction")
-    line = {k: s.get(k) for k in keys}
-    # every solve that did not converge, by what it did (truncated, infeasible, failed, ...)
-    line |= {key: s[key] for st, key in SOLVE_KEYS.items()
-             if st is not SolveStatus.converged and s.get(key)}
-    if s.get("deadline_misses"):  # sim latency: inputs that came too late to act
-        line["deadline_misses"] = s["deadline_misses"]
-    log.info("%s", json.dumps(line))
+    log.info("%s", summary_line(s))
     log.info("run record: %s", out_dir)
     if hc.mode != RunMode.MULTIRUN and s.get("status") in FAILED_RUN_STATUSES:
         raise RunFailed(s["status"], s.get("error"), out_dir)
     return s
+
+
+def summary_line(s: dict) -> str:
+    """The end of a run in words: how it ended, what the solver did, the compute per step,
+    and the ``sim`` world when it is not the ideal loop."""
+    status = s.get("status")
+    if status == "arrived":
+        head = f"arrived in {s['arrival_time_s']:.1f} s"
+    elif status in ("timeout", "collision", "stalled"):
+        head = f"{status} at {s.get('sim_time_s') or 0:.1f} s"
+    else:
+        head = f"{status}" + (f" ({s['error']})" if s.get("error") else "")
+    calls = sum(int(s.get(key) or 0) for key in SOLVE_KEYS.values())
+    converged = int(s.get(SOLVE_KEYS[SolveStatus.converged]) or 0)
+    others = ", ".join(f"{int(s[key])} {st.value}" for st, key in SOLVE_KEYS.items()
+                       if st is not SolveStatus.converged and s.get(key))
+    parts = [head, f"{converged} of {calls} solves converged" + (f" ({others})" if others
+                                                                  else "")]
+    if s.get("solver_failures"):
+        parts.append(f"{s['solver_failures']} fell back")
+    if s.get("compute_median_ms") is not None:
+        parts.append(f"{s['compute_median_ms']:.2f} ms per step (p95 "
+                     f"{s.get('compute_p95_ms') or float('nan'):.2f} ms)")
+    if s.get("sim") not in (None, "nominal"):
+        world = f"sim {s['sim']}"
+        if s.get("latency_median_ms") is not None:
+            world += f": latency {s['latency_median_ms']:.1f} ms median"
+        if s.get("deadline_misses"):
+            world += f", {s['deadline_misses']} deadline misses"
+        parts.append(world)
+    return " | ".join(parts)
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

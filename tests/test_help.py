@@ -40,3 +40,18 @@ def test_a_mistyped_key_gets_mpclabs_did_you_mean(capsys) -> None:
     err = capsys.readouterr().err
     assert "unknown key 'horizn' in controller. Did you mean 'horizon'?" in err
     assert "Traceback" not in err and "+controller.horizn" not in err
+
+
+def test_the_end_of_run_line_is_in_words() -> None:
+    from mpclab.__main__ import summary_line
+
+    s = {"status": "arrived", "arrival_time_s": 10.4, "n_steps": 52, "solves_converged": 50,
+         "solves_truncated": 2, "solver_failures": 0, "compute_median_ms": 1.6052524,
+         "compute_p95_ms": 3.2, "sim": "realistic", "latency_median_ms": 2.16,
+         "deadline_misses": 3}
+    line = summary_line(s)
+    assert line.startswith("arrived in 10.4 s | 50 of 52 solves converged (2 truncated)")
+    assert "1.61 ms per step (p95 3.20 ms)" in line
+    assert "sim realistic: latency 2.2 ms median, 3 deadline misses" in line
+    nominal = summary_line({**s, "sim": "nominal", "status": "timeout", "sim_time_s": 60.0})
+    assert nominal.startswith("timeout at 60.0 s") and "sim" not in nominal
