@@ -45,6 +45,9 @@ class StepContext:
         Names of the objective terms the supervisor has switched on (None: all).
     mode
         The supervisor's mode name (for logging).
+    follow
+        ``(n,)``: 1 for a detected point of the boundary the supervisor follows, else 0
+        (None: none followed).
     """
 
     goal: FloatArray
@@ -53,6 +56,7 @@ class StepContext:
     ranges: FloatArray = field(default_factory=lambda: np.zeros(0))
     active: frozenset[str] | None = None
     mode: str = ""
+    follow: FloatArray | None = None
 
 
 @dataclass

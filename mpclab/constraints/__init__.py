@@ -1,0 +1,1 @@
+"""Constraints of an MPC problem, declared beside the objective terms (``objective.constraints``)."""
