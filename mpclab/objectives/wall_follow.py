@@ -47,6 +47,12 @@ class BoundaryFollow(_PositionTerm):
         Smoothing length of the soft minimum [m].
     side
         ``right`` or ``left``: where the boundary stays.
+    side_width
+        > 0: a point counts by how far it lies on ``side`` of the predicted heading,
+        ``1 / (1 + exp(-s / side_width))`` with ``s`` its signed distance from the heading
+        line (so that in a passage narrower than twice the clearance the wall on ``side``
+        is the one followed, and turning round makes the other wall that one) [m]; 0: every
+        followed point counts.
     """
 
     uses_follow = True
@@ -58,6 +64,7 @@ class BoundaryFollow(_PositionTerm):
         C_progress: float = 500.0,
         tau: float = 0.01,
         side: Side | str = Side.right,
+        side_width: float = 0.0,
         eps: float = 1e-6,
     ) -> None:
         super().__init__(eps)
@@ -66,19 +73,26 @@ class BoundaryFollow(_PositionTerm):
         self.C_progress = number(C_progress, "C_progress", at_least=0)
         self.tau = number(tau, "tau", above=0)
         self.side = parse_choice(Side, side, "side")
+        self.side_width = number(side_width, "side_width", at_least=0)
 
     def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
         x, y = self._xy(X)                                   # (1, T)
         pts, f = ctx.detections, ctx.follow                  # (2, M), (M,)
         M, T = pts.shape[1], x.shape[1]
         dist = _pairwise(x, y, pts, self.eps)                # (M, T)
+        sign = 1.0 if self.side is Side.right else -1.0
         e = ca.repmat(f, 1, T) * ca.exp(-dist / self.tau)
+        if self.side_width > 0:
+            th = X[self._ith, 1:]
+            rx = ca.repmat(pts[0, :].T, 1, T) - ca.repmat(x, M, 1)
+            ry = ca.repmat(pts[1, :].T, 1, T) - ca.repmat(y, M, 1)
+            right = ca.repmat(ca.sin(th), M, 1) * rx - ca.repmat(ca.cos(th), M, 1) * ry
+            e = e / (1 + ca.exp(-sign * right / self.side_width))
         S = ca.sum1(e) + 1e-300                              # (1, T)
         d = -self.tau * ca.log(S)
         w = e / ca.repmat(S, M, 1) / dist
         nx = ca.sum1(w * (ca.repmat(x, M, 1) - ca.repmat(pts[0, :].T, 1, T)))
         ny = ca.sum1(w * (ca.repmat(y, M, 1) - ca.repmat(pts[1, :].T, 1, T)))
-        sign = 1.0 if self.side is Side.right else -1.0
         tx, ty = sign * ny, -sign * nx                        # boundary on ``side``
         norm = ca.sqrt(nx**2 + ny**2 + self.eps)
         px = ca.horzcat(X[self._ix, 0], x)

@@ -14,7 +14,8 @@ Which terms each mode switches on is configuration, not code.
 The boundary followed is the obstacle that was hit: the detections are segmented into runs
 (connected sets of points less than ``run_link`` apart: what the robot cannot pass
 between); the run holding the blocking point is remembered at the hit and tracked step to
-step (the run nearest to the one followed before), and its mask is :attr:`follow`, which
+step (the runs within ``run_link`` of the points followed before, or else the nearest run:
+a boundary that turns out to close a narrow gap joins it), and its mask is :attr:`follow`, which
 the controller hands to the wall-following term.
 """
 
@@ -80,7 +81,7 @@ class Bug2(Supervisor):
         mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
         goal_sight_range: float = 0.0,
-        run_link: float = 0.12,
+        run_link: float = 0.15,
         objective: Objective | None = None,
     ) -> None:
         given = dict(modes or MODES)
@@ -139,10 +140,13 @@ class Bug2(Supervisor):
         elif self.can_leave(p, self._last) or self.goal_in_sight(p, det):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
-        elif len(det):  # the run nearest to the one followed before
-            gap = [np.min(np.linalg.norm(det[labels == r][:, None] - self._followed[None],
-                                         axis=2)) for r in range(labels.max() + 1)]
-            self._followed = det[labels == int(np.argmin(gap))]
+        elif len(det):  # the runs that touch the one followed before, else the nearest
+            gap = np.array([np.min(np.linalg.norm(
+                det[labels == r][:, None] - self._followed[None], axis=2))
+                for r in range(labels.max() + 1)])
+            keep = np.flatnonzero(gap < self.run_link)
+            keep = keep if keep.size else [int(np.argmin(gap))]
+            self._followed = det[np.isin(labels, keep)]
         if self.mode is Bug2Mode.wall_follow and self._followed is not None:
             self.follow = np.array([float(np.any(np.all(np.isclose(d, self._followed), axis=1)))
                                     for d in det])
