@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mpclab.controllers.base import StepContext
 from mpclab.constraints.obstacle import ObstacleDistance
+from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective

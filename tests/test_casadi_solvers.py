@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from mpclab.codegen import build as codegen_build
-from mpclab.controllers import casadi_compile
 from mpclab.constraints.obstacle import ObstacleDistance
+from mpclab.controllers import casadi_compile
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.controllers.casadi_ocp import Params

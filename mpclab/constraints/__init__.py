@@ -1,1 +1,1 @@
-"""Constraints of an MPC problem, declared beside the objective terms (``objective.constraints``)."""
+"""Constraints of an MPC problem, declared beside its objective terms (objective.constraints)."""

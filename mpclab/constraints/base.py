@@ -5,10 +5,11 @@ can take it: ``casadi_rows`` writes its rows ``g <= 0`` at one stage of a CasADi
 backend asks :meth:`Constraint.require`; one that a constraint does not support refuses at
 construction, naming the constraint and the backends that accept it.
 
-The OCP calls ``casadi_rows`` once per stage ``k = 0..T-1`` with the stage's state ``x_k``,
-its successor ``x_next`` (written as ``F(x_k, u_k)`` in multiple shooting, so that a row
-coupling both stays local to stage ``k``, the form fatrop needs), the stage's slack (a
-variable ``>= 0`` of stage ``k`` when :attr:`Constraint.soft`, else None) and the per-step
+The OCP calls ``casadi_rows`` with ``x_next`` each predicted state ``x_k`` (``k = 1..T``, and
+``x`` None), or, for a constraint that :attr:`Constraint.couples_stages`, once per stage
+``k = 0..T-1`` with ``x = x_k`` and ``x_next`` its successor written ``F(x_k, u_k)`` (so that
+the rows stay local to stage ``k``, the form fatrop needs); with the state's slack (a
+variable ``>= 0`` of its stage when :attr:`Constraint.soft`, else None) and the per-step
 quantities (:class:`~mpclab.objectives.base.TermContext`, plus the constraint's own
 parameters, declared by :meth:`Constraint.declare` and filled each step by
 :meth:`Constraint.values`). A soft constraint adds ``penalty * slack_k`` to the cost.
@@ -32,6 +33,8 @@ class Constraint:
     #: one slack variable >= 0 per stage, penalised by ``penalty * slack`` (exact L1)
     soft: bool = False
     penalty: float = 0.0
+    #: whether the rows couple a state and its successor (else they read ``x_next`` alone)
+    couples_stages: bool = False
 
     def bind(self, plant: Any) -> None:
         """Resolve state labels against ``plant``; called once by the backend."""

@@ -87,6 +87,7 @@ class ObstacleDistance(_Positions):
         if self.gamma > 1:
             raise ConfigError(f"constraints.<name>.gamma must be in (0, 1], got {gamma}")
         self.soft = self.mode is ObstacleMode.soft
+        self.couples_stages = self.mode is ObstacleMode.cbf
 
     def declare(self, params: Any, n_points: int) -> dict[str, Any]:
         return {"radius": params.add(f"{self.name}_radius", n_points)}

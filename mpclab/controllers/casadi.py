@@ -3,7 +3,9 @@
 The NLP (:mod:`mpclab.controllers.casadi_ocp`) is built once, with every per-step quantity
 a named parameter: the measured state, the goal, the target over the horizon, up to
 ``max_detections`` detected points with a mask, the applied input and one activity weight
-per objective term (so a supervisor switches objective sets without a rebuild). Solvers:
+per objective term (so a supervisor switches objective sets without a rebuild); the
+objective's constraints (``objective.constraints``, :mod:`mpclab.constraints`) hold in every
+set, a soft one's slacks reported in the summary (``slack_steps``, ``slack_max_m``). Solvers:
 
 * ``fatrop``: interior point exploiting the stage structure of multiple shooting; solved
   to convergence;

@@ -7,10 +7,11 @@ shooting; ``u0, ..., u_{T-1}`` for single shooting) and its constraints stage by
 an ``equality`` flag each, the form structure-exploiting solvers (fatrop) need.
 
 Constraints (:mod:`mpclab.constraints`, declared in ``objective.constraints``) write their
-rows at every stage ``k = 0..T-1`` on ``x_k`` and its successor, written ``F(x_k, u_k)`` in
-multiple shooting so that a row coupling the two (a barrier function) stays local to stage
-``k``; a soft constraint's slack ``>= 0`` is a variable of stage ``k`` placed after ``u_k``
-(one per soft constraint), with ``penalty * slack`` in the cost.
+rows on each predicted state ``x_k`` (``k = 1..T``) as path constraints of stage ``k``, a
+soft one with its slack ``>= 0``, a variable of stage ``k`` placed after ``x_k`` (one per soft
+constraint; ``penalty * slack`` in the cost); a constraint coupling ``x_k`` and its successor
+(a barrier function) writes its rows at stage ``k = 0..T-1`` on ``x_k`` and
+``F(x_k, u_k)``, so that they stay local to stage ``k``.
 """
 
 from __future__ import annotations
@@ -109,7 +110,7 @@ def build_ocp(
     follow = P.add("follow", M) if follows else None
     cpar = [c.declare(P, M) for c in constraints]  # each constraint's own parameters
     soft = [c for c in constraints if c.soft]
-    Sl = [ca.SX.sym(f"slack{k}", len(soft)) for k in range(T)] if soft else []
+    Sl = {k: ca.SX.sym(f"slack{k}", len(soft)) for k in range(1, T + 1)} if soft else {}
     Us = [ca.SX.sym(f"u{k}", nu) for k in range(T)]
     # a term coupling each input to the one before (an input rate) makes the NLP's Hessian
     # couple neighbouring stages, which a stage-structured solver cannot take: the input
@@ -138,69 +139,64 @@ def build_ocp(
             if rows.size:
                 add(xk[rows], plant.x_lb[rows], plant.x_ub[rows])
 
-    def stage(k: int, xk: Any, x_next: Any) -> None:  # the constraints' rows at stage k
+    def rows(k: int, xk: Any, x_next: Any, coupled: bool) -> None:
+        """The constraints' rows at stage ``k``: those on one state (``coupled`` False) at
+        ``x_next = x_k`` with the stage's slacks, those coupling ``x_k`` and its successor
+        (``coupled``) at ``x_k, x_next = F(x_k, u_k)``."""
         j = 0
-        for c, par in zip(constraints, cpar):
-            slack = Sl[k][j] if c.soft else None
+        for c, par in zip(constraints, cpar, strict=True):
+            slack = Sl[k][j] if c.soft and k in Sl else None
             j += int(c.soft)
-            add(c.casadi_rows(xk, x_next, slack, ctx, par, k == 0), -np.inf, 0.0)
+            if c.couples_stages is coupled:
+                add(c.casadi_rows(xk, x_next, slack, ctx, par, k == 0), -np.inf, 0.0)
 
     inf = np.full(nx, np.inf)
+    nl = len(soft)
+    w_parts, lbw, ubw, where = [], [], [], {}
+
+    def var(name: str, k: int, sym: Any, lo: Any, hi: Any) -> None:
+        start = sum(int(v.shape[0]) for v in w_parts)
+        where[name, k] = np.arange(start, start + int(sym.shape[0]))
+        w_parts.append(sym)
+        lbw.append(np.broadcast_to(np.asarray(lo, float), (int(sym.shape[0]),)).copy())
+        ubw.append(np.broadcast_to(np.asarray(hi, float), (int(sym.shape[0]),)).copy())
+
     if shooting is Shooting.multiple:
         Xs = [ca.SX.sym(f"x{k}", nx) for k in range(T + 1)]
-        w_parts, lbw, ubw = [], [], []
-        ns = nu if lift else 0
-        for k in range(T + 1):
-            w_parts.append(Xs[k])
-            lbw.append(-inf if k == 0 else plant.x_lb)
-            ubw.append(inf if k == 0 else plant.x_ub)
+        for k in range(T + 1):  # stage k: x_k, s_k, slacks_k (k >= 1), u_k (k < T)
+            var("x", k, Xs[k], -inf if k == 0 else plant.x_lb, inf if k == 0 else plant.x_ub)
             if lift:
-                w_parts.append(Ss[k])
-                lbw.append(np.full(nu, -np.inf))
-                ubw.append(np.full(nu, np.inf))
+                var("s", k, Ss[k], -np.inf, np.inf)
+            if soft and k > 0:
+                var("slack", k, Sl[k], 0.0, np.inf)
             if k == 0:
                 add(ca.vertcat(Xs[0] - x0, *([Ss[0] - u_prev] if lift else [])), 0.0, 0.0)
             if k < T:  # a stage's gap-closing constraint, then its path constraints (the
                 # order fatrop's structure detection takes)
-                w_parts.append(Us[k])
-                lbw.append(plant.u_lb)
-                ubw.append(plant.u_ub)
-                if soft:
-                    w_parts.append(Sl[k])
-                    lbw.append(np.zeros(len(soft)))
-                    ubw.append(np.full(len(soft), np.inf))
+                var("u", k, Us[k], plant.u_lb, plant.u_ub)
                 nxt = plant.F(Xs[k], Us[k], dt)
                 gap = [Xs[k + 1] - nxt]
                 add(ca.vertcat(*gap, *([Ss[k + 1] - Us[k]] if lift else [])), 0.0, 0.0)
             if k > 0:
                 path(Xs[k])
-            if k < T and constraints:
-                stage(k, Xs[k], nxt)
-        nl = len(soft)
-        stride = nx + ns + nu + nl
-        x_idx = np.array([[k * stride + i for i in range(nx)] for k in range(T + 1)])
-        u_idx = np.array([[k * stride + nx + ns + i for i in range(nu)] for k in range(T)])
-        s_idx = (np.array([[k * stride + nx + i for i in range(nu)] for k in range(T + 1)])
-                 if lift else None)
-        slack_idx = (np.array([[k * stride + nx + ns + nu + i for i in range(nl)]
-                               for k in range(T)]) if soft else None)
+                rows(k, None, Xs[k], coupled=False)
+            if k < T:
+                rows(k, Xs[k], nxt, coupled=True)
+        x_idx = np.array([where["x", k] for k in range(T + 1)])
+        s_idx = np.array([where["s", k] for k in range(T + 1)]) if lift else None
     else:
         Xs = [x0]
         for k in range(T):
+            var("u", k, Us[k], plant.u_lb, plant.u_ub)
+            if soft:
+                var("slack", k + 1, Sl[k + 1], 0.0, np.inf)
             Xs.append(plant.F(Xs[-1], Us[k], dt))
             path(Xs[-1])
-            if constraints:
-                stage(k, Xs[k], Xs[k + 1])
-        nl = len(soft)
-        w_parts, lbw, ubw = [], [], []
-        for k in range(T):
-            w_parts += [Us[k], *([Sl[k]] if soft else [])]
-            lbw += [plant.u_lb, *([np.zeros(nl)] if soft else [])]
-            ubw += [plant.u_ub, *([np.full(nl, np.inf)] if soft else [])]
+            rows(k + 1, None, Xs[k + 1], coupled=False)
+            rows(k, Xs[k], Xs[k + 1], coupled=True)
         x_idx, s_idx = None, None
-        u_idx = np.array([[k * (nu + nl) + i for i in range(nu)] for k in range(T)])
-        slack_idx = (np.array([[k * (nu + nl) + nu + i for i in range(nl)] for k in range(T)])
-                     if soft else None)
+    u_idx = np.array([where["u", k] for k in range(T)])
+    slack_idx = np.array([where["slack", k] for k in range(1, T + 1)]) if soft else None
     X, U = ca.horzcat(*Xs), ca.horzcat(*Us)
     for i, value in terminal:
         add(X[i, T] - value, 0.0, 0.0)
@@ -208,7 +204,7 @@ def build_ocp(
     cost = 0
     for j, name in enumerate(term_names):
         cost += active[j] * objective.terms[name].casadi_cost(X, U, ctx)
-    pen = sum(c.penalty * Sl[k][j] for k in range(T) for j, c in enumerate(soft))
+    pen = sum(c.penalty * Sl[k][j] for k in range(1, T + 1) for j, c in enumerate(soft))
     cost += pen
     lo, hi = (np.concatenate(b) if b else np.zeros(0) for b in (lbg, ubg))
     # common subexpressions eliminated: the derived functions are smaller (the generated C
