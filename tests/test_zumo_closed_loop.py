@@ -38,8 +38,9 @@ def test_study_b_outcomes(run_cfg, experiment, scenario, arrives, status) -> Non
 
 def test_main_command_is_converged_smooth_and_purposeful(run_cfg) -> None:
     """Issue 12's acceptance for `+experiment=zumo_bug2` (zumo_dead_end), all but the rtf:
-    measured (IPOPT + dU) 10.4 s, converged 1.0, u1 0.10 sign changes/s, heading -4.8 rad,
-    clearance 0.056 m; before (3 capped SQP steps): 14.0 s, 0.93/s, -11.24 rad."""
+    measured with the obstacle constraint (fatrop) 10.0 s, converged 1.0, u1 0.10 sign
+    changes/s, heading change at most 4.06 rad, clearance 0.056 m; the study's formulation
+    (zumo_bug2_study) 10.4 s."""
     res, _ = run_cfg(["+experiment=zumo_bug2"])
     s = res.summary
     assert s["status"] == "arrived" and s["arrival_time_s"] <= 11.0, s
