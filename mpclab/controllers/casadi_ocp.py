@@ -151,7 +151,6 @@ def build_ocp(
                 add(c.casadi_rows(xk, x_next, slack, ctx, par, k == 0), -np.inf, 0.0)
 
     inf = np.full(nx, np.inf)
-    nl = len(soft)
     w_parts, lbw, ubw, where = [], [], [], {}
 
     def var(name: str, k: int, sym: Any, lo: Any, hi: Any) -> None:
