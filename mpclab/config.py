@@ -40,6 +40,7 @@ class Config:
     scenario: Any = MISSING
     sim: Any = MISSING
     recorder: Any = MISSING
+    safety_filter: Any = None  # a filter of the applied input: +safety_filter=cbf
 
 
 ConfigStore.instance().store(name="config_schema", node=Config)

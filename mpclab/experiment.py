@@ -96,6 +96,11 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
                            scenario=scenario)
         if cache is not None:
             cache.store(cfg, (plant, objective, controller))
+    # the input filter (+safety_filter=cbf), set on every run: a reused controller too
+    sf = cfg.get("safety_filter")
+    controller.safety_filter = build(sf, "safety_filter", plant=plant) if sf else None
+    cols = tuple(c for c in controller.log_columns if c != "safety_filter")
+    controller.log_columns = (*cols, "safety_filter") if sf else cols
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     return Run(plant, controller, scenario, supervisor, recorder, world)
 

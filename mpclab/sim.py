@@ -166,7 +166,7 @@ def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None)
     mode, active = run.supervisor.update(t, measured, detections)
     return StepContext(
         goal=scen.goal, target=scen.target(t, ctrl.horizon, ctrl.dt), detections=detections,
-        ranges=ranges, active=active, mode=mode,
+        ranges=ranges, active=active, mode=mode, follow=run.supervisor.follow,
     )
 
 

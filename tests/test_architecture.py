@@ -26,7 +26,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
         "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate",
         "mpclab.stats", "mpclab.codegen", "mpclab.progress", "mpclab.warm", "mpclab.stream",
         "mpclab.origin"),
-    1: ("mpclab.plants", "mpclab.objectives", "mpclab.policy"),
+    1: ("mpclab.plants", "mpclab.objectives", "mpclab.constraints", "mpclab.policy"),
     2: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recording"),
     3: ("mpclab.sim",),
     4: ("mpclab.experiment",),

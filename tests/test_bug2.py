@@ -109,3 +109,32 @@ def test_goal_in_sight_needs_a_free_way_progress_and_range() -> None:
 def test_goal_sight_range_must_be_nonnegative() -> None:
     with pytest.raises(ConfigError, match="goal_sight_range"):
         Bug2(Zumo(), goal_sight_range=-0.1)
+
+
+def test_runs_join_points_nearer_than_the_link() -> None:
+    from mpclab.supervisors.bug2 import runs
+
+    wall = np.c_[np.linspace(0.0, 0.3, 7), np.zeros(7)]          # 5 cm apart
+    disc = np.array([[0.8, 0.0], [0.82, 0.03]])
+    labels = runs(np.vstack([wall, disc]), 0.15)
+    assert len(set(labels[:7])) == 1 and len(set(labels[7:])) == 1
+    assert labels[0] != labels[7]
+    assert runs(np.zeros((0, 2)), 0.15).shape == (0,)
+    # a gap narrower than the link (the robot cannot pass): one boundary
+    assert len(set(runs(np.array([[0.0, 0.0], [0.12, 0.0]]), 0.15))) == 1
+
+
+def test_the_hit_boundary_is_followed_and_handed_on_as_a_mask() -> None:
+    sup = make()
+    wall = np.c_[np.linspace(0.3, 0.5, 5), np.full(5, 0.65)]      # across the way, 0.15 ahead
+    other = np.array([[0.9, 0.9]])                                 # another obstacle
+    det = np.vstack([other, wall])
+    assert sup.update(0.0, np.array([0.4, 0.8, 0]), det)[0] == "wall_follow"
+    assert sup.follow.tolist() == [0, 1, 1, 1, 1, 1]
+    # the next step sees the wall shifted a little and a new far point: still the wall
+    moved = np.vstack([wall + [0.01, 0.0], [[0.1, 0.1]]])
+    sup.update(0.2, np.array([0.45, 0.8, 0]), moved)
+    assert sup.follow.tolist() == [1, 1, 1, 1, 1, 0]
+    # back to the goal: nothing is followed
+    sup.update(4.0, np.array([0.42, 0.5, 0]), NONE)
+    assert sup.mode == "go_to_goal" and sup.follow is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.errors import ConfigError
@@ -127,7 +128,10 @@ def test_collision_constraint_keeps_predicted_positions_off_detected_points(solv
     x, point = np.array([0.4, 0.8, -np.pi / 2]), np.array([0.4, 0.7])
     kw = {"solver": solver, "shooting": "single", "sqp_iterations": 20}
     free = _zumo({"J1": GoalAttraction()}, **kw).step(0.0, x, _ctx(None, point[None]))
-    hard = _zumo({"J1": GoalAttraction()}, collision_distance=0.06, **kw).step(
+    con = ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0, sample_error=0, noise=0)
+    hard = CasadiMPC(Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]}),
+                     Objective({"J1": GoalAttraction()}, {"obstacles": con}), horizon=8,
+                     dt=0.2, initial_input={"u1": 2.0, "u2": 2.0}, **kw).step(
         0.0, x, _ctx(None, point[None])
     )
     assert free.ok and hard.ok
@@ -149,5 +153,5 @@ def test_new_options_are_checked() -> None:
         _zumo({"J1": GoalAttraction()}, shooting="triple")
     with pytest.raises(ConfigError, match="sqp_iterations"):
         _zumo({"J1": GoalAttraction()}, sqp_iterations=0)
-    with pytest.raises(ConfigError, match="collision_distance"):
-        _zumo({"J1": GoalAttraction()}, collision_distance=-0.1)
+    with pytest.raises(ConfigError, match="hard, soft, cbf"):
+        ObstacleDistance(mode="stiff")

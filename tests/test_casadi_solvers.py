@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from mpclab.codegen import build as codegen_build
+from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers import casadi_compile
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
@@ -38,14 +39,16 @@ STATES = [
 @pytest.fixture(scope="module")
 def zumo_setup():
     """The Zumo plant, BUG2's objective and controller config of the zumo_bug2 experiment."""
-    cfg = compose(["+experiment=zumo_bug2", "controller=casadi"])
+    cfg = compose(["+experiment=zumo_bug2_study", "controller=casadi"])
     plant = build(cfg.plant, "plant")
     return plant, cfg
 
 
-def _mpc(zumo_setup, **kw) -> CasadiMPC:
+def _mpc(zumo_setup, constraints=None, **kw) -> CasadiMPC:
     plant, cfg = zumo_setup
     objective = build(cfg.objective, "objective")
+    if constraints:
+        objective = Objective(objective.terms, constraints)
     return CasadiMPC(plant, objective, horizon=10, dt=0.2, max_detections=20,
                      initial_input={"u1": 2.0, "u2": 2.0}, **kw)
 
@@ -217,9 +220,11 @@ def test_car_solvers_agree_with_ipopt(opts) -> None:
 def test_fatrop_takes_the_collision_constraint_and_agrees_with_ipopt(zumo_setup) -> None:
     # the stage-wise constraint order lets fatrop detect the structure with path constraints
     x, det, active = STATES[0]
-    kw = {"collision_distance": 0.06, "tol": 1e-8, "max_iter": 500}
-    a = _mpc(zumo_setup, solver="ipopt", **kw).step(0.0, x, _ctx(det, active))
-    b = _mpc(zumo_setup, solver="fatrop", **kw).step(0.0, x, _ctx(det, active))
+    kw = {"tol": 1e-8, "max_iter": 500}
+    con = {"obstacles": ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0,
+                                         sample_error=0, noise=0)}
+    a = _mpc(zumo_setup, solver="ipopt", constraints=con, **kw).step(0.0, x, _ctx(det, active))
+    b = _mpc(zumo_setup, solver="fatrop", constraints=con, **kw).step(0.0, x, _ctx(det, active))
     assert a.status is b.status is SolveStatus.converged
     assert b.cost == pytest.approx(a.cost, rel=1e-4)
     assert b.u == pytest.approx(a.u, abs=1e-3)

@@ -45,6 +45,9 @@ class StepContext:
         Names of the objective terms the supervisor has switched on (None: all).
     mode
         The supervisor's mode name (for logging).
+    follow
+        ``(n,)``: 1 for a detected point of the boundary the supervisor follows, else 0
+        (None: none followed).
     """
 
     goal: FloatArray
@@ -53,6 +56,7 @@ class StepContext:
     ranges: FloatArray = field(default_factory=lambda: np.zeros(0))
     active: frozenset[str] | None = None
     mode: str = ""
+    follow: FloatArray | None = None
 
 
 @dataclass
@@ -121,6 +125,8 @@ class Controller(ABC):
 
     #: the shortest horizon the backend accepts (0 for controllers that predict nothing)
     min_horizon: int = 1
+    #: a filter of the applied input (:mod:`mpclab.controllers.safety_filter`), or None
+    safety_filter: Any = None
 
     def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
         if int(horizon) < self.min_horizon:
@@ -146,10 +152,14 @@ class Controller(ABC):
         if res.ok and not res.finite:  # a "success" with NaN or inf in it is a failure
             res = self._failed(SolveStatus.failed, x, f"non_finite({res.solver_status})",
                                "the solver returned non-finite values", res.iterations)
-        if res.ok:
+        res = res if res.ok else self._fallback(x, res)
+        if self.safety_filter is not None:  # the backstop on what is applied
+            u, code = self.safety_filter.filter(x, res.u, ctx.detections)
+            res = replace(res, u=u, info={**res.info, "safety_filter": code})
+            self._plan = res if res.ok else replace(res)
+        elif res.ok:
             self._plan = res
-            return res
-        return self._fallback(x, res)
+        return res
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         """Backend-specific figures for ``summary.json`` computed from the step log."""

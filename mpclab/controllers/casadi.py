@@ -3,7 +3,9 @@
 The NLP (:mod:`mpclab.controllers.casadi_ocp`) is built once, with every per-step quantity
 a named parameter: the measured state, the goal, the target over the horizon, up to
 ``max_detections`` detected points with a mask, the applied input and one activity weight
-per objective term (so a supervisor switches objective sets without a rebuild). Solvers:
+per objective term (so a supervisor switches objective sets without a rebuild); the
+objective's constraints (``objective.constraints``, :mod:`mpclab.constraints`) hold in every
+set, a soft one's slacks reported in the summary (``slack_steps``, ``slack_max_m``). Solvers:
 
 * ``fatrop``: interior point exploiting the stage structure of multiple shooting; solved
   to convergence;
@@ -102,8 +104,6 @@ class CasadiMPC(Controller):
         C compiler is found).
     jit_flags
         The C compiler's flags for ``jit`` (``-O1``: see experiments/zumo/SOLVERS.md).
-    collision_distance
-        ``R`` [m] of the hard collision constraint on detected points; 0 turns it off.
     max_iter, tol
         Iteration limit and tolerance of ``fatrop``, ``ipopt`` and ``sqp`` (not ``sqp_rti``).
     warm_start
@@ -141,7 +141,6 @@ class CasadiMPC(Controller):
         shooting: Shooting | str = Shooting.multiple,
         jit: bool = False,
         jit_flags: Sequence[str] = DEFAULT_FLAGS,
-        collision_distance: float = 0.0,
         max_iter: int = 100,
         tol: float = 1e-6,
         warm_start: bool = True,
@@ -160,10 +159,6 @@ class CasadiMPC(Controller):
             raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
         if int(sqp_iterations) < 1:
             raise ConfigError(f"controller.sqp_iterations must be >= 1, got {sqp_iterations}")
-        if not float(collision_distance) >= 0:
-            raise ConfigError(
-                f"controller.collision_distance must be >= 0 (0: off), got {collision_distance}"
-            )
         if int(max_detections) < 0:
             raise ConfigError(f"controller.max_detections must be >= 0, got {max_detections}")
         if self.solver is CasadiSolver.fatrop and self.shooting is not Shooting.multiple:
@@ -181,13 +176,15 @@ class CasadiMPC(Controller):
         self.sqp_iterations = int(sqp_iterations)
         self.jit = bool(jit)
         self.jit_flags = tuple(str(f) for f in jit_flags)
-        self.collision_distance = float(collision_distance)
         self.max_iter, self.tol = int(max_iter), float(tol)
         self.warm_start = bool(warm_start)
         self.max_detections = int(max_detections)
         self._u_guess = input_vector(plant, initial_input, "controller.initial_input")
         self.objective = objective
         objective.bind(plant, "casadi")
+        self.constraints = list(objective.constraints.values())
+        self._follows = any(t.uses_follow for t in objective.terms.values())
+        self._slack_max: list[float] = []
         self._names = list(objective.terms)
         self._M = max(self.max_detections, 1)
         terminal = terminal_rows(plant, dict(terminal_constraint or {}))
@@ -207,12 +204,13 @@ class CasadiMPC(Controller):
         self._nlp = self._full  # the one the current step solves
         self._lam_x: FloatArray | None = None
         self._lam_g: FloatArray | None = None
+        self._w_prev: FloatArray | None = None
 
     # ------------------------------------------------------------------ build once
     def _make_nlp(self, names: list[str], terminal: Any, extra: dict[str, Any]) -> _NLP:
         """The OCP of the terms ``names``, its solver (compiled if ``jit``) and buffers."""
         ocp = build_ocp(self.plant, self.objective, names, self.horizon, self.dt,
-                        self.shooting, self.max_detections, self.collision_distance, terminal)
+                        self.shooting, self.max_detections, self.constraints, terminal)
         name, opts = nlpsol_options(
             self.solver, self.qp_solver, max_iter=self.max_iter, tol=self.tol,
             sqp_iterations=self.sqp_iterations, warm_start=self.warm_start,
@@ -233,10 +231,12 @@ class CasadiMPC(Controller):
     def reset(self, x0: Any) -> None:
         super().reset(x0)
         self._lam_x = self._lam_g = None
+        self._slack_max = []
 
     def _params(self, x: FloatArray, ctx: StepContext, nlp: _NLP | None = None) -> FloatArray:
         nlp = nlp or self._full
-        det, mask = self._pad_detections(x, np.asarray(ctx.detections, dtype=float))
+        det, mask, follow = self._pad_detections(
+            x, np.asarray(ctx.detections, dtype=float), getattr(ctx, "follow", None))
         act = np.ones(len(nlp.names))
         if ctx.active is not None:
             unknown = set(ctx.active) - set(self._names)
@@ -251,34 +251,50 @@ class CasadiMPC(Controller):
             "target": np.asarray(ctx.target, dtype=float).T, "detections": det, "mask": mask,
             "active": act, "u_prev": self.previous_input,
         }
-        if self.collision_distance > 0:  # R_i = min(R, |p_0 - p_i|), 0 for padding
-            ix, iy = (self.plant.state_index(s) for s in self.plant.position)
-            d0 = np.hypot(det[0] - x[ix], det[1] - x[iy])
-            values["radius"] = np.minimum(self.collision_distance, d0) * mask
+        if self._follows:
+            values["follow"] = follow
+        for c in self.constraints:
+            values |= c.values(x, det, mask)
         return nlp.ocp.params.pack(**values)
 
-    def _pad_detections(self, x: FloatArray, det: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _pad_detections(
+        self, x: FloatArray, det: FloatArray, follow: Any = None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Detections ``(2, M)``, their mask and the followed points' mask ``(M,)``."""
         M = self._M
         ix, iy = (self.plant.state_index(s) for s in self.plant.position)
         pos = np.array([x[ix], x[iy]])
         det = det.reshape(-1, 2)
+        fol = np.zeros(len(det)) if follow is None else np.asarray(follow, dtype=float)
+        if fol.shape != (len(det),):
+            raise ValueError(f"follow mask of shape {fol.shape} for {len(det)} detections")
         if len(det) > self.max_detections:  # keep the nearest
-            order = np.argsort(np.linalg.norm(det - pos, axis=1))
-            det = det[order[: self.max_detections]]
+            order = np.argsort(np.linalg.norm(det - pos, axis=1))[: self.max_detections]
+            det, fol = det[order], fol[order]
         out = np.tile(pos + 1e3, (M, 1))  # padding far away, masked out anyway
         out[: len(det)] = det
-        mask = np.zeros(M)
+        mask, fmask = np.zeros(M), np.zeros(M)
         mask[: len(det)] = 1.0
-        return out.T, mask
+        fmask[: len(det)] = fol
+        return out.T, mask, fmask
 
-    def _initial_guess(self, x: FloatArray) -> tuple[FloatArray, bool]:
-        """The primal guess and whether it is the previous solution shifted (a warm start)."""
+    def _initial_guess(self, x: FloatArray, ctx: StepContext | None = None,
+                       ) -> tuple[FloatArray, bool]:
+        """The primal guess and whether it is the previous solution shifted (a warm start).
+
+        A shifted plan that breaks a constraint at the current detections (a point seen
+        only now, on the far side of which the plan runs) is cut at the first such step and
+        holds still from the step before (zero input): a guess on the near side, from which
+        the solver does not tunnel through the newly seen boundary.
+        """
         prev = self.previous_plan
         warm = (self.warm_start and prev is not None and not prev.fallback
                 and bool(np.any(np.abs(prev.u_pred) > 1e-6)))
         if warm:
             X, U = shift(prev.x_pred), shift(prev.u_pred)
             X[0] = x
+            if self.constraints and ctx is not None:
+                X, U = self._repaired(x, X, U, ctx)
         else:  # cold, after a fallback or from the zero plan: off the stationary point
             U = np.tile(self._u_guess, (self.horizon, 1))
             X = self.plant.rollout(x, U, self.dt)
@@ -288,13 +304,30 @@ class CasadiMPC(Controller):
             w[self.ocp.x_idx] = X
         if self.ocp.s_idx is not None:  # the lifted input before each step
             w[self.ocp.s_idx] = np.vstack([self.previous_input, U])
+        if self.ocp.slack_idx is not None and warm and self._w_prev is not None:
+            w[self.ocp.slack_idx] = shift(self._w_prev[self.ocp.slack_idx])
         return w, warm
+
+    def _repaired(self, x: FloatArray, X: FloatArray, U: FloatArray, ctx: StepContext,
+                  ) -> tuple[FloatArray, FloatArray]:
+        """``X, U`` held still from the step before the first that breaks a constraint."""
+        det, mask, _ = self._pad_detections(x, np.asarray(ctx.detections, dtype=float),
+                                            getattr(ctx, "follow", None))
+        ks = [c.first_violation(x, X, det, mask) for c in self.constraints]
+        ks = [k for k in ks if k is not None]
+        if not ks:
+            return X, U
+        k = min(ks)
+        X, U = X.copy(), U.copy()
+        U[k - 1:] = 0.0
+        X[k:] = X[k - 1]
+        return X, U
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
         key = frozenset(ctx.active) if ctx.active is not None else None
         self._nlp = nlp = self._by_set.get(key, self._full)
         io = nlp.io
-        io["x0"][:], warm = self._initial_guess(x)
+        io["x0"][:], warm = self._initial_guess(x, ctx)
         io["p"][:] = self._params(x, ctx, nlp)
         if warm and self._lam_g is not None:
             io["lam_x0"][:], io["lam_g0"][:] = self._lam_x, self._lam_g
@@ -319,6 +352,9 @@ class CasadiMPC(Controller):
             self._lam_x = self._lam_g = None
             return self._failed(status, x, raw, iterations=iters)
         ocp = self.ocp
+        self._w_prev = w
+        if ocp.slack_idx is not None:
+            self._slack_max.append(float(w[ocp.slack_idx].max()))
         self._lam_x = self._shift_lam_x(io["lam_x"])
         self._lam_g = io["lam_g"].copy()
         U = w[ocp.u_idx]
@@ -344,12 +380,18 @@ class CasadiMPC(Controller):
     def _shift_lam_x(self, lam: FloatArray) -> FloatArray:
         out = np.zeros_like(lam)
         out[self.ocp.u_idx] = shift(lam[self.ocp.u_idx])
-        for idx in (self.ocp.x_idx, self.ocp.s_idx):
+        for idx in (self.ocp.x_idx, self.ocp.s_idx, self.ocp.slack_idx):
             if idx is not None:
                 out[idx] = shift(lam[idx])
         return out
 
     def metrics(self, steps: Any) -> dict[str, Any]:
-        return {"solver": self.solver.value, "jit": self.compiled, "codegen": self.codegen,
-                "nlps": 1 + len(self._by_set), "collision_distance": self.collision_distance}
+        out = {"solver": self.solver.value, "jit": self.compiled, "codegen": self.codegen,
+               "nlps": 1 + len(self._by_set),
+               "constraints": {c.name: c.info() for c in self.constraints}}
+        if self._slack_max:  # soft constraints: how often and how far they gave way
+            sl = np.array(self._slack_max)
+            out["slack_steps"] = int(np.sum(sl > 1e-6))
+            out["slack_max_m"] = float(sl.max())
+        return out
 

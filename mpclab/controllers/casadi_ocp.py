@@ -6,12 +6,12 @@ writes the NLP with its variables in stage order (``x0, u0, x1, u1, ..., xT`` fo
 shooting; ``u0, ..., u_{T-1}`` for single shooting) and its constraints stage by stage with
 an ``equality`` flag each, the form structure-exploiting solvers (fatrop) need.
 
-Optional hard collision constraint (``collision_distance = R > 0``): every predicted position
-``p_k`` (``k = 1..T``) keeps ``|p_k - p_i| >= R_i`` from every detected point ``p_i``, written
-``R_i^2 - |p_k - p_i|^2 <= 0``, with ``R_i = min(R, |p_0 - p_i|)`` (a point already nearer
-than ``R`` may not be approached further, so that standing still stays feasible) and
-``R_i = 0`` for padding. The left side is concave in ``p_k``: its linearization (an SQP's QP)
-is a half-plane inside the feasible set.
+Constraints (:mod:`mpclab.constraints`, declared in ``objective.constraints``) write their
+rows on each predicted state ``x_k`` (``k = 1..T``) as path constraints of stage ``k``, a
+soft one with its slack ``>= 0``, a variable of stage ``k`` placed after ``x_k`` (one per soft
+constraint; ``penalty * slack`` in the cost); a constraint coupling ``x_k`` and its successor
+(a barrier function) writes its rows at stage ``k = 0..T-1`` on ``x_k`` and
+``F(x_k, u_k)``, so that they stay local to stage ``k``.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from mpclab.constraints.base import Constraint
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
 
@@ -85,12 +86,14 @@ class OCP:
     x_idx: np.ndarray | None   # (T+1, nx) indices of the states in w (multiple shooting)
     u_idx: np.ndarray          # (T, nu) indices of the inputs in w
     s_idx: np.ndarray | None   # (T+1, nu) indices of the lifted inputs-before (or None)
+    slack_idx: np.ndarray | None  # (T, n_soft) indices of the soft constraints' slacks
+    slack_fn: ca.Function | None  # (w, p) -> the slacks' penalty (None without soft ones)
     plan_fn: ca.Function       # (w, p) -> X (nx, T+1)
 
 
 def build_ocp(
     plant: Plant, objective: Objective, term_names: Sequence[str], horizon: int, dt: float,
-    shooting: Shooting, max_detections: int, collision_distance: float,
+    shooting: Shooting, max_detections: int, constraints: Sequence[Constraint],
     terminal: Sequence[tuple[int, float]],
 ) -> OCP:
     """The MPC problem over ``horizon`` steps of ``plant.F`` with the (active) terms' cost."""
@@ -103,7 +106,11 @@ def build_ocp(
     mask = P.add("mask", M)
     active = P.add("active", len(term_names))
     u_prev = P.add("u_prev", nu)
-    radius = P.add("radius", M) if collision_distance > 0 else None
+    follows = any(t.uses_follow for t in objective.terms.values())
+    follow = P.add("follow", M) if follows else None
+    cpar = [c.declare(P, M) for c in constraints]  # each constraint's own parameters
+    soft = [c for c in constraints if c.soft]
+    Sl = {k: ca.SX.sym(f"slack{k}", len(soft)) for k in range(1, T + 1)} if soft else {}
     Us = [ca.SX.sym(f"u{k}", nu) for k in range(T)]
     # a term coupling each input to the one before (an input rate) makes the NLP's Hessian
     # couple neighbouring stages, which a stage-structured solver cannot take: the input
@@ -114,7 +121,8 @@ def build_ocp(
         t.uses_input_before for t in objective.terms.values())
     Ss = [ca.SX.sym(f"s{k}", nu) for k in range(T + 1)] if lift else []
     ctx = TermContext(x0=x0, target=target, u_prev=u_prev, goal=goal, detections=det,
-                      mask=mask, u_before=ca.horzcat(*Ss[:T]) if lift else None)
+                      mask=mask, u_before=ca.horzcat(*Ss[:T]) if lift else None,
+                      follow=follow)
     g: list[ca.SX] = []
     lbg: list[np.ndarray] = []
     ubg: list[np.ndarray] = []
@@ -130,46 +138,64 @@ def build_ocp(
             rows = np.flatnonzero(np.isfinite(plant.x_lb) | np.isfinite(plant.x_ub))
             if rows.size:
                 add(xk[rows], plant.x_lb[rows], plant.x_ub[rows])
-        if radius is not None:
-            add(_collision(plant, xk, det, radius), -np.inf, 0.0)
+
+    def rows(k: int, xk: Any, x_next: Any, coupled: bool) -> None:
+        """The constraints' rows at stage ``k``: those on one state (``coupled`` False) at
+        ``x_next = x_k`` with the stage's slacks, those coupling ``x_k`` and its successor
+        (``coupled``) at ``x_k, x_next = F(x_k, u_k)``."""
+        j = 0
+        for c, par in zip(constraints, cpar, strict=True):
+            slack = Sl[k][j] if c.soft and k in Sl else None
+            j += int(c.soft)
+            if c.couples_stages is coupled:
+                add(c.casadi_rows(xk, x_next, slack, ctx, par, k == 0), -np.inf, 0.0)
 
     inf = np.full(nx, np.inf)
+    w_parts, lbw, ubw, where = [], [], [], {}
+
+    def var(name: str, k: int, sym: Any, lo: Any, hi: Any) -> None:
+        start = sum(int(v.shape[0]) for v in w_parts)
+        where[name, k] = np.arange(start, start + int(sym.shape[0]))
+        w_parts.append(sym)
+        lbw.append(np.broadcast_to(np.asarray(lo, float), (int(sym.shape[0]),)).copy())
+        ubw.append(np.broadcast_to(np.asarray(hi, float), (int(sym.shape[0]),)).copy())
+
     if shooting is Shooting.multiple:
         Xs = [ca.SX.sym(f"x{k}", nx) for k in range(T + 1)]
-        w_parts, lbw, ubw = [], [], []
-        ns = nu if lift else 0
-        for k in range(T + 1):
-            w_parts.append(Xs[k])
-            lbw.append(-inf if k == 0 else plant.x_lb)
-            ubw.append(inf if k == 0 else plant.x_ub)
+        for k in range(T + 1):  # stage k: x_k, s_k, slacks_k (k >= 1), u_k (k < T)
+            var("x", k, Xs[k], -inf if k == 0 else plant.x_lb, inf if k == 0 else plant.x_ub)
             if lift:
-                w_parts.append(Ss[k])
-                lbw.append(np.full(nu, -np.inf))
-                ubw.append(np.full(nu, np.inf))
+                var("s", k, Ss[k], -np.inf, np.inf)
+            if soft and k > 0:
+                var("slack", k, Sl[k], 0.0, np.inf)
             if k == 0:
                 add(ca.vertcat(Xs[0] - x0, *([Ss[0] - u_prev] if lift else [])), 0.0, 0.0)
             if k < T:  # a stage's gap-closing constraint, then its path constraints (the
                 # order fatrop's structure detection takes)
-                w_parts.append(Us[k])
-                lbw.append(plant.u_lb)
-                ubw.append(plant.u_ub)
-                gap = [Xs[k + 1] - plant.F(Xs[k], Us[k], dt)]
+                var("u", k, Us[k], plant.u_lb, plant.u_ub)
+                nxt = plant.F(Xs[k], Us[k], dt)
+                gap = [Xs[k + 1] - nxt]
                 add(ca.vertcat(*gap, *([Ss[k + 1] - Us[k]] if lift else [])), 0.0, 0.0)
             if k > 0:
                 path(Xs[k])
-        stride = nx + ns + nu
-        x_idx = np.array([[k * stride + i for i in range(nx)] for k in range(T + 1)])
-        u_idx = np.array([[k * stride + nx + ns + i for i in range(nu)] for k in range(T)])
-        s_idx = (np.array([[k * stride + nx + i for i in range(nu)] for k in range(T + 1)])
-                 if lift else None)
+                rows(k, None, Xs[k], coupled=False)
+            if k < T:
+                rows(k, Xs[k], nxt, coupled=True)
+        x_idx = np.array([where["x", k] for k in range(T + 1)])
+        s_idx = np.array([where["s", k] for k in range(T + 1)]) if lift else None
     else:
         Xs = [x0]
         for k in range(T):
+            var("u", k, Us[k], plant.u_lb, plant.u_ub)
+            if soft:
+                var("slack", k + 1, Sl[k + 1], 0.0, np.inf)
             Xs.append(plant.F(Xs[-1], Us[k], dt))
             path(Xs[-1])
-        w_parts = list(Us)
-        lbw, ubw = [plant.u_lb] * T, [plant.u_ub] * T
-        x_idx, u_idx, s_idx = None, np.arange(T * nu).reshape(T, nu), None
+            rows(k + 1, None, Xs[k + 1], coupled=False)
+            rows(k, Xs[k], Xs[k + 1], coupled=True)
+        x_idx, s_idx = None, None
+    u_idx = np.array([where["u", k] for k in range(T)])
+    slack_idx = np.array([where["slack", k] for k in range(1, T + 1)]) if soft else None
     X, U = ca.horzcat(*Xs), ca.horzcat(*Us)
     for i, value in terminal:
         add(X[i, T] - value, 0.0, 0.0)
@@ -177,6 +203,8 @@ def build_ocp(
     cost = 0
     for j, name in enumerate(term_names):
         cost += active[j] * objective.terms[name].casadi_cost(X, U, ctx)
+    pen = sum(c.penalty * Sl[k][j] for k in range(1, T + 1) for j, c in enumerate(soft))
+    cost += pen
     lo, hi = (np.concatenate(b) if b else np.zeros(0) for b in (lbg, ubg))
     # common subexpressions eliminated: the derived functions are smaller (the generated C
     # of the Zumo NLP by a quarter)
@@ -185,11 +213,7 @@ def build_ocp(
         nlp=nlp, params=P, lbg=lo, ubg=hi,
         equality=[bool(v) for v in (lo == hi)], lbw=np.concatenate(lbw),
         ubw=np.concatenate(ubw), x_idx=x_idx, u_idx=u_idx, s_idx=s_idx,
+        slack_idx=slack_idx, slack_fn=ca.Function("penalty", [w, p], [pen]) if soft else None,
         plan_fn=ca.Function("plan", [w, p], [X]),
     )
 
-
-def _collision(plant: Plant, xk: Any, det: Any, radius: Any) -> Any:
-    """``R_i^2 - |p_k - p_i|^2`` ``(M,)`` at one predicted state."""
-    ix, iy = (plant.state_index(s) for s in plant.position)
-    return radius**2 - (xk[ix] - det[0, :].T) ** 2 - (xk[iy] - det[1, :].T) ** 2

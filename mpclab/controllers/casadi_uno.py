@@ -75,11 +75,16 @@ class UnoMPC(Controller):
         if int(max_iter) < 1:
             raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
         objective.bind(plant, "casadi")
+        if objective.constraints:
+            raise ConfigError(
+                f"controller=casadi_uno has no room for detected points, so it cannot take "
+                f"objective.constraints ({', '.join(objective.constraints)}); use "
+                "controller=casadi")
         self._names = list(objective.terms)
         self._u_guess = input_vector(plant, initial_input, "controller.initial_input")
         terminal = terminal_rows(plant, terminal_constraint)
         self.ocp = build_ocp(plant, objective, self._names, self.horizon, self.dt,
-                             Shooting.multiple, 0, 0.0, terminal)
+                             Shooting.multiple, 0, (), terminal)
         self.solver = ca.nlpsol("mpc", "uno", self.ocp.nlp, {"print_time": False, "uno": {
             "preset": self.preset.value, "logger": "SILENT", "print_solution": False,
             "max_iterations": int(max_iter), "primal_tolerance": float(tol),

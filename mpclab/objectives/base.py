@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from mpclab.constraints.base import Constraint
 from mpclab.errors import ConfigError
 from mpclab.registry import component
 
@@ -45,6 +46,9 @@ class TermContext:
         own ``u_0 .. u_{T-2}``. None: a term builds it from ``u_prev`` and ``U``. A
         stage-structured NLP (fatrop) gives lifted variables here, so that a term using it
         stays local to each stage.
+    follow
+        ``(M,)``: 1 for a detected point of the boundary being followed (a supervisor's
+        choice), else 0. None where the backend does not provide it.
     """
 
     x0: Any
@@ -54,6 +58,7 @@ class TermContext:
     detections: Any = None
     mask: Any = None
     u_before: Any = None
+    follow: Any = None
 
 
 class Term:
@@ -62,6 +67,8 @@ class Term:
     name: str = ""
     #: whether the term reads ``TermContext.u_before`` (couples each step to the one before)
     uses_input_before: bool = False
+    #: whether the term reads ``TermContext.follow`` (the followed boundary's points)
+    uses_follow: bool = False
 
     def bind(self, plant: Any) -> None:
         """Resolve state/input labels against ``plant``; called once by the backend."""
@@ -95,13 +102,18 @@ class Term:
 class ObjectiveConf:
     _target_: str = "mpclab.objectives.base.Objective"
     terms: dict[str, Any] = field(default_factory=dict)
+    constraints: dict[str, Any] = field(default_factory=dict)
 
 
 @component("objective", "objective", ObjectiveConf)
 class Objective:
-    """A named set of terms; the cost is their sum (or the sum of the active ones)."""
+    """A named set of terms; the cost is their sum (or the sum of the active ones).
 
-    def __init__(self, terms: Mapping[str, Term]) -> None:
+    ``constraints`` (:mod:`mpclab.constraints`) hold in every mode, whichever terms are on.
+    """
+
+    def __init__(self, terms: Mapping[str, Term],
+                 constraints: Mapping[str, Constraint] | None = None) -> None:
         if not terms:
             raise ConfigError("objective.terms is empty: an objective needs at least one term")
         self.terms: dict[str, Term] = {}
@@ -113,11 +125,24 @@ class Objective:
                 )
             term.name = name
             self.terms[name] = term
+        self.constraints: dict[str, Constraint] = {}
+        for name, con in (constraints or {}).items():
+            if not isinstance(con, Constraint):
+                raise ConfigError(
+                    f"objective.constraints.{name} is not a constraint (got "
+                    f"{type(con).__name__}); give it a _target_ naming a Constraint class "
+                    "(e.g. mpclab.constraints.obstacle.ObstacleDistance)"
+                )
+            con.name = name
+            self.constraints[name] = con
 
     def bind(self, plant: Any, backend: str) -> None:
         for term in self.terms.values():
             term.require(backend)
             term.bind(plant)
+        for con in self.constraints.values():
+            con.require(backend)
+            con.bind(plant)
 
     def __iter__(self):
         return iter(self.terms.values())

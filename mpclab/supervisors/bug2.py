@@ -10,6 +10,13 @@ or (ours, ``goal_sight_range > 0``) when the goal is that near, closer than the 
 wall is reached without following the wall on to the m-line. Either rule keeps BUG2's
 progress argument: every leave point is closer to the goal than the hit point before it.
 Which terms each mode switches on is configuration, not code.
+
+The boundary followed is the obstacle that was hit: the detections are segmented into runs
+(connected sets of points less than ``run_link`` apart: what the robot cannot pass
+between); the run holding the blocking point is remembered at the hit and tracked step to
+step (the runs within ``run_link`` of the points followed before, or else the nearest run:
+a boundary that turns out to close a narrow gap joins it), and its mask is :attr:`follow`, which
+the controller hands to the wall-following term.
 """
 
 from __future__ import annotations
@@ -58,6 +65,8 @@ class Bug2(Supervisor):
     goal_sight_range
         Also leave off the m-line when the goal is nearer than this and the corridor to it
         is free of detected points [m] (at most the sensor's range); 0: the m-line only.
+    run_link
+        Detected points nearer than this to each other belong to one boundary [m].
     objective
         Injected; every term a mode names must be one of its terms, and every one of its
         terms must be named by some mode (a term no mode names would be silently off).
@@ -72,6 +81,7 @@ class Bug2(Supervisor):
         mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
         goal_sight_range: float = 0.0,
+        run_link: float = 0.15,
         objective: Objective | None = None,
     ) -> None:
         given = dict(modes or MODES)
@@ -89,6 +99,7 @@ class Bug2(Supervisor):
         self.leave_margin = number(leave_margin, "supervisor.leave_margin")
         self.sight = number(goal_sight_range, "supervisor.goal_sight_range (0: off)",
                             at_least=0)
+        self.run_link = number(run_link, "supervisor.run_link", above=0)
         self._ip = [plant.state_index(s) for s in plant.position]
         self.mode = Bug2Mode.go_to_goal
         #: ((x_start, y_start), (x_goal, y_goal)), set by reset
@@ -107,6 +118,8 @@ class Bug2(Supervisor):
         self.hit_point = None
         self.hits = []
         self._last: FloatArray | None = None
+        self._followed: FloatArray | None = None
+        self.follow = None
 
     def update(
         self, t: float, x: FloatArray, detections: FloatArray
@@ -114,32 +127,54 @@ class Bug2(Supervisor):
         if self.mline is None:
             raise RuntimeError("Bug2.update called before reset")
         p = np.asarray(x, dtype=float)[self._ip]
+        det = np.asarray(detections, dtype=float).reshape(-1, 2)
+        labels = runs(det, self.run_link)
         if self.mode is Bug2Mode.go_to_goal:
-            if self.blocked(p, detections):
+            if self.blocked(p, det):
                 self.mode = Bug2Mode.wall_follow
                 self.hit_point = p.copy()
                 self.hits.append((float(t), float(p[0]), float(p[1])))
-        elif self.can_leave(p, self._last) or self.goal_in_sight(p, detections):
+                block = self.blocking(p, det)
+                near = block[np.argmin(np.linalg.norm(det[block] - p, axis=1))]
+                self._followed = det[labels == labels[near]]
+        elif self.can_leave(p, self._last) or self.goal_in_sight(p, det):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
+        elif len(det):  # the runs that touch the one followed before, else the nearest
+            gap = np.array([np.min(np.linalg.norm(
+                det[labels == r][:, None] - self._followed[None], axis=2))
+                for r in range(labels.max() + 1)])
+            keep = np.flatnonzero(gap < self.run_link)
+            keep = keep if keep.size else [int(np.argmin(gap))]
+            self._followed = det[np.isin(labels, keep)]
+        if self.mode is Bug2Mode.wall_follow and self._followed is not None:
+            self.follow = np.array([float(np.any(np.all(np.isclose(d, self._followed), axis=1)))
+                                    for d in det])
+        else:
+            self.follow, self._followed = None, None
         self._last = p
         return self.mode.value, self.modes[self.mode]
 
     # ------------------------------------------------------------------ geometry
-    def blocked(self, p: FloatArray, detections: FloatArray, reach: float | None = None) -> bool:
-        """Whether a detected point lies in the corridor from ``p`` toward the goal, at most
+    def blocking(self, p: FloatArray, detections: FloatArray,
+                 reach: float | None = None) -> np.ndarray:
+        """Indices of the detected points in the corridor from ``p`` toward the goal, at most
         ``reach`` ahead (default ``block_range``; never beyond the goal)."""
         det = np.asarray(detections, dtype=float).reshape(-1, 2)
         to_goal = self._goal - p
         dist = float(np.linalg.norm(to_goal))
         if len(det) == 0 or dist == 0:
-            return False
+            return np.zeros(0, dtype=int)
         u = to_goal / dist
         rel = det - p
         along = rel @ u
         across = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
         reach = min(self.block_range if reach is None else reach, dist)
-        return bool(np.any((along > 0) & (along < reach) & (across < self.corridor)))
+        return np.flatnonzero((along > 0) & (along < reach) & (across < self.corridor))
+
+    def blocked(self, p: FloatArray, detections: FloatArray, reach: float | None = None) -> bool:
+        """Whether a detected point lies in the corridor toward the goal (:meth:`blocking`)."""
+        return bool(len(self.blocking(p, detections, reach)))
 
     def goal_in_sight(self, p: FloatArray, detections: FloatArray) -> bool:
         """The goal within ``goal_sight_range``, the corridor to it free, and ``p`` closer to
@@ -175,6 +210,28 @@ class Bug2(Supervisor):
         if previous is not None:
             on = on or side * self.mline_side(previous) < 0
         return bool(closer and on)
+
+
+def runs(points: FloatArray, link: float) -> np.ndarray:
+    """Label ``(n,)`` of each point's run: the connected sets of points less than ``link``
+    apart (labels 0, 1, ... in order of first appearance)."""
+    n = len(points)
+    labels = np.full(n, -1)
+    if n == 0:
+        return labels
+    near = np.linalg.norm(points[:, None] - points[None], axis=2) < link
+    run = 0
+    for i in range(n):
+        if labels[i] >= 0:
+            continue
+        stack, labels[i] = [i], run
+        while stack:
+            j = stack.pop()
+            for k in np.flatnonzero(near[j] & (labels < 0)):
+                labels[k] = run
+                stack.append(k)
+        run += 1
+    return labels
 
 
 def check_modes(modes: Mapping[str, Sequence[str]], terms: Sequence[str]) -> None:

@@ -1,0 +1,1 @@
+"""Constraints of an MPC problem, declared beside its objective terms (objective.constraints)."""

@@ -1,0 +1,79 @@
+"""Constraints as backend-independent objects, like objective terms.
+
+A constraint is data (distances, a mode) plus a way to express itself for each backend that
+can take it: ``casadi_rows`` writes its rows ``g <= 0`` at one stage of a CasADi NLP. A
+backend asks :meth:`Constraint.require`; one that a constraint does not support refuses at
+construction, naming the constraint and the backends that accept it.
+
+The OCP calls ``casadi_rows`` with ``x_next`` each predicted state ``x_k`` (``k = 1..T``, and
+``x`` None), or, for a constraint that :attr:`Constraint.couples_stages`, once per stage
+``k = 0..T-1`` with ``x = x_k`` and ``x_next`` its successor written ``F(x_k, u_k)`` (so that
+the rows stay local to stage ``k``, the form fatrop needs); with the state's slack (a
+variable ``>= 0`` of its stage when :attr:`Constraint.soft`, else None) and the per-step
+quantities (:class:`~mpclab.objectives.base.TermContext`, plus the constraint's own
+parameters, declared by :meth:`Constraint.declare` and filled each step by
+:meth:`Constraint.values`). A soft constraint adds ``penalty * slack_k`` to the cost.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from mpclab.errors import ConfigError
+
+#: backend name -> the Constraint method that expresses a constraint for it
+BACKEND_METHODS = {"casadi": "casadi_rows"}
+
+
+class Constraint:
+    """Base class of constraints. ``name`` is set by the objective from its config key."""
+
+    name: str = ""
+    #: one slack variable >= 0 per stage, penalised by ``penalty * slack`` (exact L1)
+    soft: bool = False
+    penalty: float = 0.0
+    #: whether the rows couple a state and its successor (else they read ``x_next`` alone)
+    couples_stages: bool = False
+
+    def bind(self, plant: Any) -> None:
+        """Resolve state labels against ``plant``; called once by the backend."""
+
+    def declare(self, params: Any, n_points: int) -> dict[str, Any]:
+        """Declare this constraint's per-step parameters on ``params`` (a
+        :class:`~mpclab.controllers.casadi_ocp.Params`); return ``{name: symbol}``."""
+        return {}
+
+    def values(self, x0: Any, detections: Any, mask: Any) -> dict[str, Any]:
+        """The per-step values of the parameters :meth:`declare` named, from the measured
+        state ``x0 (nx,)``, the padded detections ``(2, M)`` and their mask ``(M,)``."""
+        return {}
+
+    def casadi_rows(self, x: Any, x_next: Any, slack: Any, ctx: Any, par: Mapping[str, Any],
+                    first: bool) -> Any:
+        """Rows ``g <= 0`` (a CasADi column) at one stage; ``first``: stage 0."""
+        raise NotImplementedError
+
+    def first_violation(self, x0: Any, X: Any, detections: Any, mask: Any) -> int | None:
+        """The first step ``k >= 1`` at which the plan ``X (T+1, nx)`` (numbers) breaks this
+        constraint at the current detections, or None (the default: never judged)."""
+        return None
+
+    def info(self) -> dict[str, Any]:
+        """What the run record shows of this constraint."""
+        return {"type": type(self).__name__}
+
+    @classmethod
+    def backends(cls) -> list[str]:
+        """Backends that can express this constraint (those whose method it overrides)."""
+        return [b for b, m in BACKEND_METHODS.items()
+                if getattr(cls, m) is not getattr(Constraint, m)]
+
+    def require(self, backend: str) -> None:
+        """Raise :class:`ConfigError` unless this constraint can be expressed for ``backend``."""
+        if backend not in self.backends():
+            raise ConfigError(
+                f"constraint {self.name!r} ({type(self).__name__}) cannot be expressed by "
+                f"the {backend} backend; backends that accept it: "
+                f"{', '.join(self.backends()) or '(none)'}"
+            )

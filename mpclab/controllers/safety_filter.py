@@ -1,0 +1,139 @@
+"""A one-step control-barrier-function safety filter on the applied input (a backstop).
+
+Whatever produced the input ``u_nom`` (an NLP solved to convergence, a truncated iteration,
+a neural network), the filter applies the input nearest to it that keeps the discrete-time
+CBF condition on the next state, linearized in the input::
+
+    min |u - u_nom|^2   s.t.   h_i(p_1(u_nom)) + dh_i J (u - u_nom) >= (1 - gamma) h_i(p_0),
+                               u_lb <= u <= u_ub
+
+(linearized at ``u_nom``, then again at each answer, ``iterations`` times at most) with
+``h_i(p) = |p - q_i|^2 - R_i^2`` for each detected point ``q_i``, ``R_i = min(R,
+|p_0 - q_i|)`` (standing still always keeps the condition), ``p_1(u)`` the position one
+model step ahead and ``J = dp_1/du`` by central differences. The QP has as many variables as
+the plant has inputs; it is solved exactly by enumerating active sets of at most ``nu``
+constraints (every candidate feasible, the nearest taken). The step's ``info`` says whether
+the filter changed the input (``safety_filter``: 0 untouched, 1 modified, 2 no input kept
+the linearized condition: the one violating it least is applied).
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+from typing import Any
+
+import numpy as np
+
+from mpclab.errors import ConfigError, number
+from mpclab.registry import component
+
+FloatArray = np.ndarray
+
+
+@component("safety_filter", "cbf", injected=("plant",))
+class SafetyFilter:
+    """The one-step CBF filter of a plant's input.
+
+    Parameters
+    ----------
+    plant
+        Injected; its ``position`` labels locate the robot, its ``step`` predicts.
+    distance
+        ``R`` [m] kept from every detected point.
+    gamma
+        The barrier's decay rate per step, ``0 < gamma <= 1``.
+    dt
+        The control period [s] the next state is predicted over.
+    iterations
+        Linearizations at most, each at the last answer (the first at ``u_nom``): ``h`` is
+        convex in the position, so each linearized set lies inside the true one for a
+        position affine in the input, and the answer approaches the nearest input.
+    """
+
+    def __init__(self, plant: Any, distance: float = 0.065, gamma: float = 0.5,
+                 dt: float = 0.2, iterations: int = 5) -> None:
+        self.plant = plant
+        self.distance = number(distance, "safety_filter.distance", above=0)
+        self.gamma = number(gamma, "safety_filter.gamma", above=0)
+        if self.gamma > 1:
+            raise ConfigError(f"safety_filter.gamma must be in (0, 1], got {gamma}")
+        self.dt = number(dt, "safety_filter.dt", above=0)
+        self.iterations = int(number(iterations, "safety_filter.iterations", at_least=1))
+        self._ip = [plant.state_index(s) for s in plant.position]
+
+    def _p1(self, x: FloatArray, u: FloatArray) -> FloatArray:
+        return self.plant.step(x, u, self.dt)[self._ip]
+
+    def filter(self, x: FloatArray, u_nom: FloatArray, points: FloatArray,
+               ) -> tuple[FloatArray, int]:
+        """``(u, code)``: the filtered input and 0 (untouched), 1 (modified) or 2 (no input
+        kept the linearized condition; the least violating one)."""
+        x, u_nom = np.asarray(x, float), np.asarray(u_nom, float)
+        q = np.asarray(points, float).reshape(-1, 2)
+        if len(q) == 0:
+            return u_nom, 0
+        p0 = x[self._ip]
+        R = np.minimum(self.distance, np.linalg.norm(q - p0, axis=1))
+        h = lambda p: np.sum((p - q) ** 2, axis=1) - R**2  # noqa: E731
+        if np.all(h(self._p1(x, u_nom)) >= (1 - self.gamma) * h(p0)):
+            return u_nom, 0
+        nu = len(u_nom)
+        lb, ub = self.plant.u_lb - u_nom, self.plant.u_ub - u_nom
+        d, code = np.zeros(nu), 2
+        for _ in range(self.iterations):  # linearized at the last answer, from u_nom
+            u_lin = u_nom + d
+            p1 = self._p1(x, u_lin)
+            A = 2 * (p1 - q) @ self._jacobian(x, u_lin)          # (n, nu)
+            b = (1 - self.gamma) * h(p0) - h(p1) + A @ d         # A du >= b
+            new, code = self._qp(A, b, lb, ub)
+            done = float(np.max(np.abs(new - d))) < 1e-6
+            d = new
+            if done:
+                break
+        return u_nom + d, code
+
+    def _jacobian(self, x: FloatArray, u: FloatArray, eps: float = 1e-6) -> FloatArray:
+        """``dp_1/du`` ``(2, nu)`` by central differences."""
+        J = np.empty((2, len(u)))
+        for j in range(len(u)):
+            e = np.zeros(len(u))
+            e[j] = eps
+            J[:, j] = (self._p1(x, u + e) - self._p1(x, u - e)) / (2 * eps)
+        return J
+
+    @staticmethod
+    def _qp(A: FloatArray, b: FloatArray, lb: FloatArray, ub: FloatArray,
+            ) -> tuple[FloatArray, int]:
+        """``min |d|^2 s.t. A d >= b, lb <= d <= ub`` by enumerating active sets of at most
+        ``nu`` rows; ``(d, 1)``, or ``(d, 2)`` the least violating ``d`` when none holds."""
+        nu = A.shape[1]
+        near = b > -np.abs(A).sum(axis=1) * np.max(ub - lb)   # rows that can bind
+        rows = [(A[i], b[i]) for i in np.flatnonzero(near)]
+        for j in range(nu):                                    # d_j >= lb_j, -d_j >= -ub_j
+            e = np.zeros(nu)
+            e[j] = 1.0
+            if np.isfinite(lb[j]):
+                rows.append((e, lb[j]))
+            if np.isfinite(ub[j]):
+                rows.append((-e, -ub[j]))
+        Ar = np.array([r[0] for r in rows])
+        br = np.array([r[1] for r in rows])
+        best, best_norm, least, least_viol = None, np.inf, np.zeros(nu), np.inf
+        for size in range(0, nu + 1):
+            for S in combinations(range(len(rows)), size):
+                if size:
+                    AS = Ar[list(S)]
+                    try:
+                        d = AS.T @ np.linalg.solve(AS @ AS.T, br[list(S)])
+                    except np.linalg.LinAlgError:
+                        continue
+                else:
+                    d = np.zeros(nu)
+                viol = float(np.max(br - Ar @ d))
+                n = float(d @ d)
+                if viol <= 1e-9 and n < best_norm:
+                    best, best_norm = d, n
+                bound_ok = np.all(d >= lb - 1e-9) and np.all(d <= ub + 1e-9)
+                if bound_ok and viol < least_viol:
+                    least, least_viol = d, viol
+        return (best, 1) if best is not None else (least, 2)
