@@ -17,6 +17,7 @@ from mpclab.instantiate import build
 from mpclab.origin import RunOrigin, where_set
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
+from mpclab.status import PROBLEM_KEY
 from mpclab.warm import ComponentCache
 
 
@@ -139,6 +140,7 @@ def run_experiment(
         **result.summary,
         **run.scenario.metrics(result.steps),
         **run.controller.metrics(result.steps),
+        PROBLEM_KEY: getattr(run.controller.solved_problem, "value", None),
         "versions": record.versions(),
     }
     result.summary["timing"] = {"build_s": t1 - t0, "simulate_s": t2 - t1}

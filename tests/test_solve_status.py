@@ -135,7 +135,10 @@ def test_any_iteration_cap_is_truncated_never_an_exception(run_cfg, overrides, c
     (["+experiment=bicycle_adaptive"], Problem.linearized),
     (["+experiment=car_cvxpy"], Problem.nonlinear),
     (["+experiment=car_cvxpy", "controller.sl=one_pass"], Problem.linearized),
-], ids=["switched", "interpolated", "adaptive", "cvxpy_converge", "cvxpy_one_pass"])
+    (["+experiment=car_casadi"], Problem.nonlinear),
+    (["+experiment=zumo_nn"], Problem.policy),
+], ids=["switched", "interpolated", "adaptive", "cvxpy_converge", "cvxpy_one_pass", "casadi",
+        "nn"])
 def test_the_record_says_what_problem_converged_means(run_cfg, overrides, problem) -> None:
     """A linear-model backend's exact QP is `converged`, and the record tells it apart from
     an NLP solved to its tolerance by the `problem` it names."""

@@ -37,7 +37,10 @@ ROOT = HERE.parent.parent
 #: the variants run when none is given: the experiment as it ships, and the same with the
 #: NMPC's hard distance constraint on (centre to detected point, 6.5 cm: robot radius 5 cm
 #: plus a margin for the ray's error and what sampling hides)
-DEFAULT_VARIANTS = (("study", ()), ("constrained", ("controller.collision_distance=0.065",)))
+#: the shipped BUG2 (obstacles as a soft distance constraint) and the study's formulation
+#: (obstacles as the potential J4 only), as ``zumo_bug2_study`` composes it
+DEFAULT_VARIANTS = (("constrained", ()),
+                    ("study", ("objective=zumo_bug2_study", "supervisor=bug2_study")))
 BASE = ("recorder=none", "progress=false", "figures.enabled=false")
 
 

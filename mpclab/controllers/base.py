@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
-from mpclab.status import USABLE, SolveStatus
+from mpclab.status import USABLE, Problem, SolveStatus
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -160,6 +160,9 @@ class Controller(ABC):
         elif res.ok:
             self._plan = res
         return res
+
+    #: what a ``converged`` call solved (each backend says; None: not said)
+    solved_problem: Problem | None = None
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         """Backend-specific figures for ``summary.json`` computed from the step log."""

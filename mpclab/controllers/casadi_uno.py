@@ -33,6 +33,7 @@ from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
+from mpclab.status import Problem
 
 #: Uno's return string for a point that minimizes the constraint violation (no feasible one)
 _INFEASIBLE = "Converged with infeasible stationary point"
@@ -63,6 +64,9 @@ class UnoMPC(Controller):
     terminal_constraint
         ``{state label: value}`` imposed on the last predicted state.
     """
+
+    #: the NLP of the plant's own model, solved to Uno's tolerance
+    solved_problem = Problem.nonlinear
 
     def __init__(
         self, plant: Plant, objective: Objective, horizon: int = 10, dt: float = 0.1,

@@ -39,7 +39,7 @@ from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
 from mpclab.registry import component
-from mpclab.status import PROBLEM_KEY, Problem
+from mpclab.status import Problem
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
@@ -323,8 +323,8 @@ class CvxpyMPC(Controller):
         return Problem.nonlinear if self.sl is SlMode.converge else Problem.linearized
 
     def metrics(self, steps: Any) -> dict[str, Any]:
-        """What problem a ``converged`` step solved, and the linearization scheme."""
-        return {PROBLEM_KEY: self.solved_problem.value, "sl": self.sl.value}
+        """The linearization scheme."""
+        return {"sl": self.sl.value}
 
     def _trust_region_qp(self, bar: Point, r: float) -> QPSolution:
         """The QP linearized about ``bar`` with ``|U - bar.U| <= r`` (in half input ranges)."""

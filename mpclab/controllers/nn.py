@@ -19,6 +19,7 @@ from mpclab.plants.base import Plant
 from mpclab.policy.features import FeatureSet, n_features
 from mpclab.policy.mlp import MLP, Activation, activate
 from mpclab.registry import component
+from mpclab.status import Problem
 from mpclab.world.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -42,6 +43,9 @@ class NNController(Controller):
     """
 
     min_horizon = 0
+
+    #: a learned policy evaluated exactly: no optimal control problem is solved
+    solved_problem = Problem.policy
 
     def __init__(
         self, plant: Plant, weights: str, dt: float = 0.2, scenario: Scenario | None = None

@@ -58,7 +58,7 @@ from mpclab.objectives.base import Objective
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.base import Plant
 from mpclab.registry import component
-from mpclab.status import PROBLEM_KEY, Problem
+from mpclab.status import Problem
 
 
 class ScheduleMode(StrEnum):
@@ -359,7 +359,7 @@ class ScheduledMPC(Controller):
         ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
         U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
         out: dict[str, Any] = {
-            PROBLEM_KEY: self.solved_problem.value, "control_horizon": self.control_horizon,
+            "control_horizon": self.control_horizon,
             "schedule_mode": self.mode.value, "n_operating_points": len(self.grid),
             "codegen": self.codegen,
         }
