@@ -23,10 +23,27 @@ class Terminated(KeyboardInterrupt):
     """A run or sweep stopped by a signal other than Ctrl-C's (its name is the message)."""
 
 
+#: the stop signal received within :func:`signals_interrupt`, if any: native code (a solver)
+#: may hand the :class:`Terminated` back as an error of its own
+_RECEIVED: list[str] = []
+
+
+def received() -> Terminated | None:
+    """The :class:`Terminated` of a stop signal this process received, or None."""
+    return Terminated(_RECEIVED[-1]) if _RECEIVED else None
+
+
 def _stop(signum: int, frame: FrameType | None) -> None:
-    for sig in STOP_SIGNALS:  # a second signal: the system's handling, the process ends
+    default_stop_signals()  # a second signal: the system's handling, the process ends
+    _RECEIVED.append(signal.Signals(signum).name)
+    raise Terminated(_RECEIVED[-1])
+
+
+def default_stop_signals() -> None:
+    """The system's handling of SIGTERM and SIGHUP (the process ends): for a worker process
+    forked from one within :func:`signals_interrupt`."""
+    for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_DFL)
-    raise Terminated(signal.Signals(signum).name)
 
 
 @contextlib.contextmanager
@@ -37,8 +54,10 @@ def signals_interrupt() -> Iterator[None]:
         yield
         return
     saved = {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS}
+    _RECEIVED.clear()
     try:
         yield
     finally:
+        _RECEIVED.clear()
         for sig, handler in saved.items():
             signal.signal(sig, handler)

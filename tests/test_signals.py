@@ -43,7 +43,7 @@ def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
     log = run_dir / "__main__.log"
     _wait_for(lambda: log.exists() and "t = " in log.read_text(), proc)
     proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=60) == 130
+    assert proc.wait(timeout=60) == 130, (tmp_path / "console.txt").read_text()[-3000:]
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["n_steps"] > 0
     assert "SIGTERM" in summary["error"]

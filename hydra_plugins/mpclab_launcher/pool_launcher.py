@@ -72,7 +72,7 @@ from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchd
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
-from mpclab.stopping import Terminated
+from mpclab.stopping import Terminated, default_stop_signals
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
@@ -121,10 +121,20 @@ def _init_worker(
                    board=board, composer=composer)
 
 
+def _init_forked(*args: Any) -> None:
+    """:func:`_init_worker` for a worker process forked from the launching one: SIGTERM and
+    SIGHUP end it as they end any process (the launching process's handlers, which turn them
+    into an interrupt, are not inherited: the pool stops a worker with SIGTERM, and the
+    launching process passes an interrupt on to its workers as SIGINT)."""
+    default_stop_signals()
+    _init_worker(*args)
+
+
 def _init_pickled(blob: bytes, board_cells: Any = None) -> None:
     """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
     (Hydra's configs hold classes that the standard pickle cannot find by name); the shared
     ``board_cells`` apart (shared memory passes only as the process starts)."""
+    default_stop_signals()
     _init_worker(*cloudpickle.loads(blob), board_cells=board_cells)
 
 
@@ -282,7 +292,7 @@ class PoolLauncher(Launcher):
         ctx = multiprocessing.get_context(self.start_method)
         board = JobBoard.new(ctx, len(jobs))
         if self.start_method == "fork":  # inherited, not pickled
-            initializer, initargs = _init_worker, (*init, board.cells)
+            initializer, initargs = _init_forked, (*init, board.cells)
         else:
             initializer, initargs = _init_pickled, (cloudpickle.dumps(init), board.cells)
         results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}

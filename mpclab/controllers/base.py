@@ -22,6 +22,7 @@ import numpy.typing as npt
 from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.status import USABLE, Problem, SolveStatus
+from mpclab.stopping import received
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -93,23 +94,24 @@ class ControlStep:
         return all(map(math.isfinite, self.u.tolist())) and math.isfinite(self.u_pred.sum())
 
 
-def interrupted(exc: BaseException) -> bool:
-    """Whether ``exc`` is a Ctrl-C that native code handed back as another error; it must
-    stop the run, not count as a failed solve. CasADi's solvers check for SIGINT between
-    iterations and raise ``RuntimeError('KeyboardInterrupt')`` (their
-    ``KeyboardInterruptException``); a SIGINT inside a generated function comes back as
-    ``SystemError: ... returned a result with an exception set``, raised from the
-    ``KeyboardInterrupt``."""
+def interrupted(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt behind ``exc``, if it is one that native code handed back as another
+    error (it must stop the run, not count as a failed solve); None otherwise. CasADi's
+    solvers check for SIGINT between iterations and raise ``RuntimeError('KeyboardInterrupt')``
+    (their ``KeyboardInterruptException``); a SIGINT inside a generated function comes back
+    as ``SystemError: ... returned a result with an exception set``, raised from the
+    ``KeyboardInterrupt``; a SIGTERM or SIGHUP received meanwhile (:mod:`mpclab.stopping`)
+    makes any error an interrupt."""
     seen: set[int] = set()
     cause: BaseException | None = exc
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, KeyboardInterrupt):
-            return True
+            return cause
         if isinstance(cause, RuntimeError) and str(cause).strip().endswith("KeyboardInterrupt"):
-            return True
+            return received() or KeyboardInterrupt()
         seen.add(id(cause))
         cause = cause.__cause__ or cause.__context__
-    return False
+    return received()
 
 
 class Controller(ABC):
@@ -146,8 +148,9 @@ class Controller(ABC):
         try:
             res = self._solve(t, x, ctx)
         except Exception as exc:  # a solver crash must not end a sweep: record and fall back
-            if interrupted(exc):  # Ctrl-C inside native code, handed back as another error
-                raise KeyboardInterrupt from exc
+            stop = interrupted(exc)  # Ctrl-C inside native code, handed back as another error
+            if stop is not None:
+                raise stop from exc
             res = self._failed(SolveStatus.exception, x, type(exc).__name__, str(exc))
         if res.ok and not res.finite:  # a "success" with NaN or inf in it is a failure
             res = self._failed(SolveStatus.failed, x, f"non_finite({res.solver_status})",
