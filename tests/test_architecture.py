@@ -25,7 +25,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     0: ("mpclab", "mpclab.errors", "mpclab.status", "mpclab.lazy", "mpclab.quiet",
         "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate",
         "mpclab.stats", "mpclab.codegen", "mpclab.progress", "mpclab.warm", "mpclab.stream",
-        "mpclab.origin", "mpclab.provenance", "mpclab.stopping"),
+        "mpclab.origin", "mpclab.provenance", "mpclab.stopping", "mpclab.expressible"),
     1: ("mpclab.plants", "mpclab.objectives", "mpclab.constraints", "mpclab.policy"),
     2: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recording"),
     3: ("mpclab.sim",),

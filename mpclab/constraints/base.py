@@ -20,16 +20,18 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from mpclab.errors import ConfigError
+from mpclab.expressible import Expressible
 
 #: backend name -> the Constraint method that expresses a constraint for it
 BACKEND_METHODS = {"casadi": "casadi_rows"}
 
 
-class Constraint:
+class Constraint(Expressible):
     """Base class of constraints. ``name`` is set by the objective from its config key."""
 
-    name: str = ""
+    backend_methods = BACKEND_METHODS
+    kind = "constraint"
+
     #: one slack variable >= 0 per stage, penalised by ``penalty * slack`` (exact L1)
     soft: bool = False
     penalty: float = 0.0
@@ -62,18 +64,3 @@ class Constraint:
     def info(self) -> dict[str, Any]:
         """What the run record shows of this constraint."""
         return {"type": type(self).__name__}
-
-    @classmethod
-    def backends(cls) -> list[str]:
-        """Backends that can express this constraint (those whose method it overrides)."""
-        return [b for b, m in BACKEND_METHODS.items()
-                if getattr(cls, m) is not getattr(Constraint, m)]
-
-    def require(self, backend: str) -> None:
-        """Raise :class:`ConfigError` unless this constraint can be expressed for ``backend``."""
-        if backend not in self.backends():
-            raise ConfigError(
-                f"constraint {self.name!r} ({type(self).__name__}) cannot be expressed by "
-                f"the {backend} backend; backends that accept it: "
-                f"{', '.join(self.backends()) or '(none)'}"
-            )

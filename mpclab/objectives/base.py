@@ -15,6 +15,7 @@ from typing import Any
 
 from mpclab.constraints.base import Constraint
 from mpclab.errors import ConfigError
+from mpclab.expressible import Expressible
 from mpclab.registry import component
 
 #: backend name -> the Term method that expresses a term for it
@@ -61,10 +62,12 @@ class TermContext:
     follow: Any = None
 
 
-class Term:
+class Term(Expressible):
     """Base class of objective terms. ``name`` is set by the objective from its config key."""
 
-    name: str = ""
+    backend_methods = BACKEND_METHODS
+    kind = "objective term"
+
     #: whether the term reads ``TermContext.u_before`` (couples each step to the one before)
     uses_input_before: bool = False
     #: whether the term reads ``TermContext.follow`` (the followed boundary's points)
@@ -80,23 +83,6 @@ class Term:
     def casadi_cost(self, X: Any, U: Any, ctx: TermContext) -> Any:
         """CasADi expression over ``X (nx, T+1)``, ``U (nu, T)``."""
         raise NotImplementedError
-
-    @classmethod
-    def backends(cls) -> list[str]:
-        """Backends that can express this term (those whose method it overrides)."""
-        return [
-            b for b, m in BACKEND_METHODS.items() if getattr(cls, m) is not getattr(Term, m)
-        ]
-
-    def require(self, backend: str) -> None:
-        """Raise :class:`ConfigError` unless this term can be expressed for ``backend``."""
-        if backend not in self.backends():
-            raise ConfigError(
-                f"objective term {self.name!r} ({type(self).__name__}) cannot be expressed "
-                f"by the {backend} backend; backends that accept it: "
-                f"{', '.join(self.backends()) or '(none)'}"
-            )
-
 
 @dataclass
 class ObjectiveConf:

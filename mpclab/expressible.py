@@ -1,0 +1,41 @@
+"""What an objective term and a constraint share: the backends that can express one.
+
+A family (terms, constraints) names, per backend, the method that expresses one of its
+members for that backend (:attr:`Expressible.backend_methods`); a member can be expressed
+by the backends whose method its class overrides. A backend asks :meth:`Expressible.require`,
+which refuses with a message naming the member and the backends that accept it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import ClassVar
+
+from mpclab.errors import ConfigError
+
+
+class Expressible:
+    """Base of a family of things a backend expresses (terms, constraints)."""
+
+    #: set from the config key by the objective that holds it
+    name: str = ""
+    #: backend name -> the method that expresses a member for it (set by the family's base)
+    backend_methods: ClassVar[Mapping[str, str]] = {}
+    #: what messages call a member ("objective term", "constraint")
+    kind: ClassVar[str] = ""
+
+    @classmethod
+    def backends(cls) -> list[str]:
+        """Backends that can express this class (those whose method it overrides)."""
+        family = next(c for c in cls.__mro__ if "backend_methods" in vars(c))
+        return [b for b, m in cls.backend_methods.items()
+                if getattr(cls, m) is not getattr(family, m)]
+
+    def require(self, backend: str) -> None:
+        """Raise :class:`ConfigError` unless this can be expressed for ``backend``."""
+        if backend not in self.backends():
+            raise ConfigError(
+                f"{self.kind} {self.name!r} ({type(self).__name__}) cannot be expressed "
+                f"by the {backend} backend; backends that accept it: "
+                f"{', '.join(self.backends()) or '(none)'}"
+            )
