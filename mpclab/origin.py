@@ -23,6 +23,8 @@ from omegaconf import DictConfig, OmegaConf
 _PATH = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)+)[: ]")
 _TERM = re.compile(r"^objective term '(\w+)'")
 _QUOTED = re.compile(r"'([A-Za-z_]\w*)'")
+#: ``PATH: KEY: ...``: a component's message about its own option, keyed by where it was built
+_OPTION = re.compile(r"^[A-Za-z_][\w.]*: ([A-Za-z_][\w.]*): ")
 
 
 @dataclass(frozen=True)
@@ -49,6 +51,10 @@ def where_set(cfg: DictConfig, message: str, conf_dir: Path, run: RunOrigin | No
     if (m is None and term is None) or run is None:
         return ""
     path = m.group(1) if m else f"objective.terms.{term.group(1)}"
+    option = _OPTION.match(message)
+    if option is not None and OmegaConf.select(cfg, f"{path}.{option.group(1)}",
+                                                default=None) is not None:
+        path = f"{path}.{option.group(1)}"  # the option itself, not its component
     node = OmegaConf.select(cfg, path, default=None)
     labels = set(_QUOTED.findall(message)) - ({term.group(1)} if term else set())
     keys = _keys_named(node, path, labels) if isinstance(node, DictConfig) else []

@@ -55,3 +55,11 @@ def test_the_end_of_run_line_is_in_words() -> None:
     assert "sim realistic: latency 2.2 ms median, 3 deadline misses" in line
     nominal = summary_line({**s, "sim": "nominal", "status": "timeout", "sim_time_s": 60.0})
     assert nominal.startswith("timeout at 60.0 s") and "sim" not in nominal
+
+
+def test_a_bad_constraint_option_names_its_key_and_where_it_was_set(capsys) -> None:
+    assert cli(["+experiment=zumo_bug2", "+ci=smoke", "objective.constraints.obstacles.mode=sofft"]
+               ) == 2
+    err = capsys.readouterr().err
+    assert "objective.constraints.obstacles: mode: unknown choice 'sofft'; valid: hard" in err
+    assert "the command line (objective.constraints.obstacles.mode=sofft)" in err

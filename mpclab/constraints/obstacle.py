@@ -76,16 +76,17 @@ class ObstacleDistance(_Positions):
         penalty: float = 1.0e6,
         gamma: float = 0.5,
     ) -> None:
-        self.mode = parse_choice(ObstacleMode, mode, "constraints.<name>.mode")
-        self.budget = {k: number(v, f"constraints.<name>.{k}", at_least=0) for k, v in {
+        self.mode = parse_choice(ObstacleMode, mode, "mode")
+        self.budget = {k: number(v, k, at_least=0) for k, v in {
             "robot_radius": robot_radius, "ray_error": ray_error,
             "sample_error": sample_error, "noise": noise}.items()}
-        self.distance = number(sum(self.budget.values()), "constraints.<name> margin total",
+        self.distance = number(sum(self.budget.values()),
+                               "the margin total (robot_radius + ray_error + sample_error + noise)",
                                above=0)
-        self.penalty = number(penalty, "constraints.<name>.penalty", above=0)
-        self.gamma = number(gamma, "constraints.<name>.gamma", above=0)
+        self.penalty = number(penalty, "penalty", above=0)
+        self.gamma = number(gamma, "gamma", above=0)
         if self.gamma > 1:
-            raise ConfigError(f"constraints.<name>.gamma must be in (0, 1], got {gamma}")
+            raise ConfigError(f"gamma must be in (0, 1], got {gamma}")
         self.soft = self.mode is ObstacleMode.soft
         self.couples_stages = self.mode is ObstacleMode.cbf
 
@@ -143,7 +144,7 @@ class SensedRegion(_Positions):
     """
 
     def __init__(self, max_range: float = 0.3) -> None:
-        self.max_range = number(max_range, "constraints.<name>.max_range", above=0)
+        self.max_range = number(max_range, "max_range", above=0)
 
     def casadi_rows(self, x: Any, x_next: Any, slack: Any, ctx: Any, par: Any,
                     first: bool) -> Any:
