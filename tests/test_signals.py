@@ -38,10 +38,11 @@ def _wait_for(check, proc: subprocess.Popen, limit_s: float = 240.0) -> None:
 
 def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
-    proc = _start([*LONG_RUN, "scenario.t_max=5000", "progress=true",
+    proc = _start([*LONG_RUN, "scenario.t_max=50000", "progress=true",
                    f"hydra.run.dir={run_dir}"], tmp_path / "console.txt")
     log = run_dir / "__main__.log"
-    _wait_for(lambda: log.exists() and "t = " in log.read_text(), proc)
+    # said once the loop has run 2 s and its estimate is above a minute: the loop is going
+    _wait_for(lambda: log.exists() and "a long run" in log.read_text(), proc)
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=60) == 130, (tmp_path / "console.txt").read_text()[-3000:]
     summary = json.loads((run_dir / "summary.json").read_text())
