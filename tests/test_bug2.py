@@ -162,7 +162,7 @@ def test_the_supervisor_hands_over_the_path_only_while_following() -> None:
     sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]))
     assert sup.update(0.0, np.array([0.4, 0.9, 0.0]), NONE)[0] == "go_to_goal"
     assert sup.target(0.0, 10, 0.2) is None
-    wall = np.c_[np.linspace(0.2, 0.6, 9), np.full(9, 0.75)]      # across the way
+    wall = np.c_[np.linspace(0.0, 1.0, 21), np.full(21, 0.75)]    # across the way
     assert sup.update(0.2, np.array([0.4, 0.85, 0.0]), wall)[0] == "wall_follow"
     ref = sup.target(0.2, 10, 0.2)
     assert ref.shape == (11, 3) and np.allclose(ref[0, :2], [0.4, 0.85])
