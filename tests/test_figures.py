@@ -148,3 +148,16 @@ def test_the_sweep_figure_names_backend_and_swept_key_together(horizon_sweep: Pa
     assert len(labels) == 4 and len(set(labels)) == 4
     assert "casadi, controller.horizon=10" in labels and "cvxpy, controller.horizon=8" in labels
     assert np.isfinite(pd.to_numeric(df["compute_cpu_median_ms"])).all()
+
+
+def test_a_sweep_whose_every_job_failed_draws_a_note_not_a_crash(tmp_path: Path) -> None:
+    (tmp_path / "multirun.yaml").write_text("hydra: {}\n")
+    for num in range(2):  # error rows: no compute columns at all
+        (tmp_path / str(num) / ".hydra").mkdir(parents=True)
+        (tmp_path / str(num) / ".hydra" / "overrides.yaml").write_text(
+            f"- controller.horizon={num + 5}\n")
+        (tmp_path / str(num) / "summary.json").write_text(json.dumps(
+            {"status": "error", "controller": "cvxpy", "error": "ValueError: no"}))
+    df = tables.collect([tmp_path], root=tmp_path)
+    fig = read_figure(plot_arrival_vs_compute(df, tmp_path / "a.png"))
+    assert fig.ink > 0 and "0 of 2 runs arrived" in fig.panels[0].title

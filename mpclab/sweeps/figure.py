@@ -15,7 +15,7 @@ import pandas as pd
 
 from mpclab.figure_file import save_figure
 from mpclab.lazy import pyplot
-from mpclab.tables import XAxis, group_keys
+from mpclab.tables import XAxis, group_keys, numeric_column
 
 #: per x axis: (wall column, CPU column, label, unit)
 _X = {
@@ -51,12 +51,11 @@ def compute_axis(df: pd.DataFrame, x: XAxis) -> tuple[pd.Series, str]:
     """The x values of every run and the axis label: CPU time when some run was contended
     and every timed run has its CPU time, else wall time."""
     wall_col, cpu_col, text, unit = _X[XAxis(x)]
-    wall = pd.to_numeric(df.get(wall_col), errors="coerce")
+    wall = numeric_column(df, wall_col)
     if cpu_col == "_cpu_rtf":
-        cpu = (pd.to_numeric(df.get("compute_cpu_total_s"), errors="coerce")
-               / pd.to_numeric(df.get("sim_time_s"), errors="coerce"))
+        cpu = numeric_column(df, "compute_cpu_total_s") / numeric_column(df, "sim_time_s")
     else:
-        cpu = pd.to_numeric(df.get(cpu_col), errors="coerce")
+        cpu = numeric_column(df, cpu_col)
     flagged = df["contended"].fillna(False).astype(bool) if "contended" in df else None
     n = 0 if flagged is None else int(flagged.sum())
     if n and cpu[wall.notna()].notna().all():
