@@ -84,11 +84,12 @@ def announce(message: str) -> None:
 
 def compile_shared(
     source: str, prefix: str, flags: Sequence[str], extra_key: Sequence[str] = (),
-    libs: Sequence[str] = (),
+    libs: Sequence[str] = (), header: str | None = None, keep_source: bool = False,
 ) -> Path:
     """The shared object of the C ``source``, compiled once and cached as ``PREFIX_KEY.so``;
     ``libs`` (``-L``, ``-l``, rpath options) follow the source on the command line and count
-    in the key like the flags.
+    in the key like the flags. With ``keep_source``, the source stays beside the library as
+    ``PREFIX_KEY.c`` (and ``header``, if given, as ``PREFIX_KEY.h``): :func:`kept_source`.
 
     Raises
     ------
@@ -104,6 +105,8 @@ def compile_shared(
     folder = cache_dir()
     lib = folder / f"{prefix}_{key}.so"
     if lib.exists():
+        if keep_source:
+            _keep(lib, source, header)
         return lib
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -129,7 +132,32 @@ def compile_shared(
     finally:
         for leftover in (src_name, tmp_lib):
             Path(leftover).unlink(missing_ok=True)
+    if keep_source:
+        _keep(lib, source, header)
     return lib
+
+
+def kept_source(lib: Path) -> list[Path]:
+    """The generated C kept beside the library ``lib`` (``.c``, then ``.h`` if there is one)."""
+    return [p for p in (lib.with_suffix(".c"), lib.with_suffix(".h")) if p.is_file()]
+
+
+def _keep(lib: Path, source: str, header: str | None) -> None:
+    """Write ``source`` (and ``header``) beside ``lib`` unless already there, each whole
+    (written under a temporary name and renamed, as the library)."""
+    for suffix, text in ((".c", source), (".h", header)):
+        path = lib.with_suffix(suffix)
+        if text is None or path.is_file():
+            continue
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=lib.parent)
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            os.chmod(tmp, 0o644)  # readable like any source (mkstemp makes it private)
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise CompileError(f"cannot keep the generated C in {lib.parent} ({exc}; set "
+                               "MPCLAB_CACHE)") from None
 
 
 def compile_indexed(

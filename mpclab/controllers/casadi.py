@@ -394,6 +394,9 @@ class CasadiMPC(Controller):
         out = {"solver": self.solver.value, "jit": self.compiled, "codegen": self.codegen,
                "nlps": 1 + len(self._by_set),
                "constraints": {c.name: c.info() for c in self.constraints}}
+        if self.codegen:  # where its C is (printed at the end of the run)
+            out["generated_c"] = [str(p) for n in (self._full, *self._by_set.values())
+                                  for p in (n.generated.generated if n.generated else [])]
         if self._slack_max:  # soft constraints: how often and how far they gave way
             sl = np.array(self._slack_max)
             out["slack_steps"] = int(np.sum(sl > 1e-6))

@@ -29,6 +29,11 @@ DEFAULT_FLAGS = ("-O1",)
 def generated_c(write: Callable[[str], object]) -> str:
     """The C that ``write(file name)`` (a CasADi ``generate`` method, which writes into the
     working folder) produces, read back from a temporary folder."""
+    return generated_c_and_h(write)[0]
+
+
+def generated_c_and_h(write: Callable[[str], object]) -> tuple[str, str | None]:
+    """:func:`generated_c`, and the header ``write`` wrote beside it (None: none)."""
     with tempfile.TemporaryDirectory(prefix="mpclab_nlp_") as tmp:
         cwd = os.getcwd()
         os.chdir(tmp)
@@ -36,7 +41,9 @@ def generated_c(write: Callable[[str], object]) -> str:
             write("nlp.c")
         finally:
             os.chdir(cwd)
-        return (Path(tmp) / "nlp.c").read_text()
+        header = Path(tmp) / "nlp.h"
+        return ((Path(tmp) / "nlp.c").read_text(),
+                header.read_text() if header.is_file() else None)
 
 
 def problem_key(nlp: dict[str, Any], plugin: str, opts: dict[str, Any]) -> str:
