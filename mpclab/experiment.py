@@ -18,6 +18,7 @@ from mpclab.origin import RunOrigin, where_set
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 from mpclab.status import PROBLEM_KEY
+from mpclab.trust import check_config
 from mpclab.warm import ComponentCache
 
 
@@ -63,8 +64,10 @@ def build_run(
 ) -> Run:
     """Instantiate plant, objective, scenario, supervisor, sim world, controller, recorder.
 
-    The controller comes after the others but the recorder: it is the expensive one to
-    build (a CasADi NLP compiles), so bad input anywhere else is refused before it. With a
+    Every ``_target_`` in ``cfg`` is checked first (:func:`mpclab.trust.check_config`: only
+    registered components are built). The controller comes after the others but the
+    recorder: it is the expensive one to build (a CasADi NLP compiles), so bad input
+    anywhere else is refused before it. With a
     ``cache``, plant, objective and controller are reused from an earlier run of the same
     structure (:mod:`mpclab.warm`). With the run's ``origin`` (Hydra's choices and command
     line), a bad-input message also says which file or override set the key it names.
@@ -79,6 +82,7 @@ def build_run(
 
 
 def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | None) -> Run:
+    check_config(cfg)  # the whole tree, before anything in it is built
     if cfg.seed < 0:
         raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)
