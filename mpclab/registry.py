@@ -94,7 +94,7 @@ def import_plugins(names: Any, key: str = "plugins") -> None:
                               f"got {name!r}")
         if name.split(".")[0] in sys.stdlib_module_names:
             raise ConfigError(f"{where}: {name!r} is a module of Python's standard library, "
-                              "not one of components")
+                              "not one of your components")
         if name in sys.modules:
             continue
         try:
