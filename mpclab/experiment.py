@@ -118,7 +118,9 @@ def run_experiment(
 
     ``summary["timing"]`` holds the wall seconds of building, the closed loop and writing.
     Ctrl-C during the loop writes the record of the steps so far (status ``interrupted``)
-    and raises :class:`~mpclab.sim.RunInterrupted` (a ``KeyboardInterrupt``) again.
+    and raises :class:`~mpclab.sim.RunInterrupted` (a ``KeyboardInterrupt``) again. The
+    record is written before the recording is closed and the figures drawn; a folder that
+    cannot take one of them (full, read-only) is an ``OSError`` naming it.
     """
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
@@ -130,8 +132,10 @@ def run_experiment(
         result = simulate(run, progress=progress)
     except RunInterrupted as exc:
         result, interrupted = exc.result, exc
-    finally:
+    except BaseException:
         run.recorder.close()
+        raise
+    finally:
         if progress is not None:
             progress.done()
     t2 = time.perf_counter()
@@ -148,13 +152,21 @@ def run_experiment(
         "versions": record.versions(),
     }
     result.summary["timing"] = {"build_s": t1 - t0, "simulate_s": t2 - t1}
-    record.write(out_dir, result.steps, result.horizons, result.summary)
+    # the record first: a full disk costs the recording or the figures, not the record
+    try:
+        record.write(out_dir, result.steps, result.horizons, result.summary)
+    except BaseException:
+        run.recorder.close()
+        raise
+    with record.writing(out_dir, "the recording (the run record is written)"):
+        run.recorder.close()
     if interrupted is not None:
         raise interrupted
     if cfg.figures.enabled:
         from mpclab.recording.figures import plot_run
 
-        plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
+        with record.writing(out_dir, "the figures (the run record is written)"):
+            plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
     result.summary["timing"]["write_s"] = time.perf_counter() - t2
     return result
 
