@@ -7,9 +7,13 @@ the launcher (each with any ``_target_`` nested in it). Hydra has no public hook
 composing and those steps, so :func:`check_command_line` first composes the same config
 through Hydra's public config loader (``GlobalHydra.config_loader().load_configuration``:
 the same primary config, search path, run mode and overrides that ``@hydra.main`` uses for
-that command line) and checks it with :func:`mpclab.trust.check_config`. Commands that only
-print (``--cfg``, ``--info``, ``--shell-completion``) are not checked: Hydra composes for them
-without configuring logging or building anything.
+that command line) and checks it with :func:`mpclab.trust.check_config`.
+
+Composing itself imports the package named by a ``pkg://`` entry of ``hydra.searchpath``
+(which only the command line and the primary config set): such an entry naming a module of
+the standard library is refused before anything is composed, for every command. Commands
+that only print (``--cfg``, ``--info``, ``--shell-completion``) are not checked further:
+Hydra composes for them without configuring logging or building anything.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from mpclab.config import CONF_DIR
 from mpclab.errors import ConfigError
+from mpclab.registry import check_module_name
 from mpclab.trust import check_config, check_multirun, check_value
 
 #: the config folder and name of ``python -m mpclab`` (its ``@hydra.main``)
@@ -61,21 +66,43 @@ def check_command_line(argv: Sequence[str]) -> None:
     """Raise :class:`ConfigError` if the config ``python -m mpclab ARGV`` composes may not
     be run (:func:`mpclab.trust.check_config`). A command line that does not parse or
     compose is left to Hydra, which refuses it in the same way before acting on anything."""
-    try:
-        args = hydra_arguments().parse_args(list(argv))
+    try:  # not parse_args: it prints its usage for an argument it does not know
+        args, unknown = hydra_arguments().parse_known_args(list(argv))
     except (argparse.ArgumentError, SystemExit):
+        return
+    if unknown:
         return
     if args.experimental_rerun is not None:
         raise ConfigError("--experimental-rerun loads a pickled config, which can run any "
                           "code; mpclab does not take it (run the command line again)")
-    if args.version or args.cfg or args.info is not None or args.shell_completion:
+    if args.version or args.shell_completion:
         return
     main_dir = _main_dir(args.config_path)
     name = None if args.hydra_help else (args.config_name or MAIN_CONFIG)
-    if args.config_dir is not None and not os.path.isdir(os.path.expanduser(args.config_dir)):
-        return  # Hydra refuses the folder
-    overrides = _with_config_dir(list(args.overrides), args.config_dir, main_dir, name)
-    if overrides is None or not os.path.isdir(main_dir):
+    try:
+        parsed = OverridesParser.create().parse_overrides(list(args.overrides))
+        given = next((o for o in parsed if o.get_key_element() == "hydra.searchpath"), None)
+        searchpath = given.value() if given else _primary_searchpath(main_dir, name)
+    except Exception:  # noqa: BLE001  (an override or a primary file Hydra refuses alike)
+        return
+    if not isinstance(searchpath, list) or not all(isinstance(p, str) for p in searchpath):
+        return  # Hydra refuses it: a list of strings
+    for i, entry in enumerate(searchpath):  # read while composing, before anything else
+        if entry.startswith("pkg://"):
+            check_module_name(entry[len("pkg://"):].split("/")[0], f"hydra.searchpath[{i}]")
+    if args.cfg or args.info is not None:
+        return  # printed: Hydra configures no logging and builds nothing
+    if args.config_dir is not None:
+        folder = os.path.abspath(os.path.expanduser(args.config_dir))
+        if not os.path.isdir(folder):
+            return  # Hydra refuses the folder
+        # searched after the primary folder, before hydra.searchpath's (as Hydra places it)
+        quoted = ", ".join(f"'{p}'" for p in [f"file://{folder}", *searchpath])
+        overrides = [o for o in args.overrides if given is None or o != given.input_line]
+        overrides.append(f"hydra.searchpath=[{quoted}]")
+    else:
+        overrides = list(args.overrides)
+    if not os.path.isdir(main_dir):
         return
     GlobalHydra.instance().clear()  # an earlier @hydra.main run in this process leaves it set
     with initialize_config_dir(config_dir=main_dir, version_base="1.3"):
@@ -130,28 +157,6 @@ def _main_dir(config_path: str | None) -> str:
     if config_path is None:
         return str(CONF_DIR)
     return os.path.normpath(os.path.join(MAIN_FILE_DIR, os.path.expanduser(config_path)))
-
-
-def _with_config_dir(overrides: list[str], config_dir: str | None, main_dir: str,
-                     name: str | None) -> list[str] | None:
-    """``overrides`` with ``--config-dir`` as Hydra places it: searched after the primary
-    folder and before the entries of ``hydra.searchpath`` (the command line's, else the
-    primary config's). None where the overrides do not parse (Hydra refuses them)."""
-    if config_dir is None:
-        return overrides
-    try:
-        parsed = OverridesParser.create().parse_overrides(overrides)
-    except Exception:  # noqa: BLE001  (Hydra's OverrideParseException, refused alike)
-        return None
-    folder = f"file://{os.path.abspath(os.path.expanduser(config_dir))}"
-    given = next((o for o in parsed if o.get_key_element() == "hydra.searchpath"), None)
-    if given is not None:
-        rest = list(given.value() or [])
-        overrides = [o for o in overrides if o != given.input_line]
-    else:
-        rest = _primary_searchpath(main_dir, name)
-    quoted = ", ".join(f"'{p}'" for p in [folder, *rest])
-    return [*overrides, f"hydra.searchpath=[{quoted}]"]
 
 
 def _primary_searchpath(main_dir: str, name: str | None) -> list[str]:

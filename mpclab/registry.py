@@ -82,19 +82,26 @@ def require_registered(name: Any, path: str) -> Any:
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
+def check_module_name(name: Any, where: str) -> None:
+    """:class:`ConfigError` naming config key ``where`` unless ``name`` is a module name a
+    config may have imported: not one of Python's standard library (they register nothing,
+    and some act when imported: ``antigravity`` opens a browser)."""
+    if not isinstance(name, str) or not _MODULE.fullmatch(name):
+        raise ConfigError(f"{where}: expected a module name (my_terms, my_pkg.plants), "
+                          f"got {name!r}")
+    if name.split(".")[0] in sys.stdlib_module_names:
+        raise ConfigError(f"{where}: {name!r} is a module of Python's standard library, not "
+                          "one of your components")
+
+
 def import_plugins(names: Any, key: str = "plugins") -> None:
     """Import the modules of the user's own components, listed by name at config ``key``
     (``plugins: [my_terms]``), which registers them. A module is looked up on Python's path
     (the working folder of ``python -m mpclab``, ``PYTHONPATH``); the standard library's are
-    refused (they register nothing, and some act when imported)."""
+    refused (:func:`check_module_name`)."""
     for i, name in enumerate(names or ()):
         where = f"{key}[{i}]"
-        if not isinstance(name, str) or not _MODULE.fullmatch(name):
-            raise ConfigError(f"{where}: expected a module name (my_terms, my_pkg.plants), "
-                              f"got {name!r}")
-        if name.split(".")[0] in sys.stdlib_module_names:
-            raise ConfigError(f"{where}: {name!r} is a module of Python's standard library, "
-                              "not one of your components")
+        check_module_name(name, where)
         if name in sys.modules:
             continue
         try:

@@ -108,6 +108,8 @@ CASES = [
     (["-m", *CAR, "seed=0,1", "hydra/sweeper=basic", "hydra/launcher=joblib"],
      "would apply each job's config unchecked"),
     ([*CAR, "plugins=[antigravity]"], "plugins[0]: 'antigravity' is a module of Python's"),
+    (["--cfg", "job", *CAR, "hydra.searchpath=[pkg://antigravity]"],
+     "hydra.searchpath[0]: 'antigravity' is a module of Python's"),
     (["--experimental-rerun", "{conf}/config.pickle"], "--experimental-rerun"),
 ]
 
