@@ -182,8 +182,9 @@ def test_a_horizon_that_builds_for_minutes_says_so_before_it_starts(monkeypatch,
 def test_the_build_estimate_grows_with_the_horizon() -> None:
     """Operations grow linearly with the horizon; the compile faster than the C."""
     size = {1: 400, 2: 700}.__getitem__  # an NLP of 300 operations a step
-    quick = announce_long_build(size, 10, True, "x")
-    long = announce_long_build(size, 1000, True, "x")
+    quick = announce_long_build(size, 30, True)
+    long = announce_long_build(size, 3000, True)
     assert 0 < quick < LONG_BUILD_S < long
     assert long / quick > 100  # a hundred times the horizon, more than that the time
-    assert announce_long_build(size, 1000, False, "x") < long
+    assert announce_long_build(size, 3000, False) < long
+    assert announce_long_build(size, 10, True) == 0  # a short horizon: not even estimated

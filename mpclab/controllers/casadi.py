@@ -46,7 +46,6 @@ from mpclab.controllers.base import (
 from mpclab.controllers.casadi_codegen import GeneratedSolver
 from mpclab.controllers.casadi_compile import (
     DEFAULT_FLAGS,
-    ESTIMATE_FROM_HORIZON,
     announce_long_build,
     compiled_nlp,
     operations,
@@ -207,10 +206,8 @@ class CasadiMPC(Controller):
                 raise ConfigError(f"controller.active_sets: terms {sorted(unknown)} are not in "
                                   f"the objective; its terms: {', '.join(self._names)}")
             sets[frozenset(names)] = [n for n in self._names if n in names]
-        if self.horizon >= ESTIMATE_FROM_HORIZON:  # a long build says so before it starts
-            announce_long_build(lambda T: operations(self._ocp(self._names, terminal, T).nlp),
-                                self.horizon, self.jit or self.codegen,
-                                f"controller.horizon={self.horizon}")
+        announce_long_build(lambda T: operations(self._ocp(self._names, terminal, T).nlp),
+                            self.horizon, self.jit or self.codegen)  # before it starts
         self._full = self._make_nlp(self._names, terminal, extra)
         self._by_set = {key: self._make_nlp(names, terminal, extra)
                         for key, names in sets.items()}

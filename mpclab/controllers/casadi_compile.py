@@ -54,21 +54,23 @@ def operations(nlp: dict[str, Any]) -> int:
     return ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).n_instructions()
 
 
-def announce_long_build(size_at: Callable[[int], int], horizon: int, compiled: bool,
-                        what: str) -> float:
+def announce_long_build(size_at: Callable[[int], int], horizon: int, compiled: bool) -> float:
     """Say before it starts that building an NLP of ``horizon`` steps (compiling its
-    functions too if ``compiled``) will take minutes, if it will; return the estimate [s].
+    functions too if ``compiled``) will take minutes, if it will; return the estimate [s]
+    (0 below :data:`ESTIMATE_FROM_HORIZON`, not estimated).
 
     ``size_at(T)``: the :func:`operations` of the NLP with a horizon of ``T`` steps, asked
     for ``T`` = 1 and 2 (milliseconds): its size grows linearly with the horizon.
     """
+    if horizon < ESTIMATE_FROM_HORIZON:
+        return 0.0
     one, two = size_at(1), size_at(2)
     ops = one + (horizon - 1) * (two - one)
     build, kb = ops * BUILD_S_PER_OP, ops * C_KB_PER_OP
     compile_s = ops * WRITE_S_PER_OP + compile_seconds(kb) if compiled else 0.0
     if build + compile_s > LONG_BUILD_S:
-        text = f"{what}: an NLP of about {ops:,} operations; building it takes roughly " \
-            f"{rough(build)}"
+        text = f"controller.horizon={horizon}: an NLP of about {ops:,} operations; building " \
+            f"it takes roughly {rough(build)}"
         if compiled:
             text += (f", then writing and compiling its C (about {kb / 1e3:,.0f} MB) roughly "
                      f"{rough(compile_s)} unless it was compiled before (cached in "
