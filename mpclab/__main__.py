@@ -4,7 +4,9 @@
 type, an impossible value, a broken file, an unwritable folder) is one short message on
 stderr and exit code 2, with no traceback unless ``HYDRA_FULL_ERROR=1``; a single run that
 ends ``solver_failed`` or ``error`` exits 1; Ctrl-C, SIGTERM or SIGHUP write the partial run
-record (a sweep: every running job's, and the tables of the jobs done) and exit 130.
+record (a sweep: every running job's, and the tables of the jobs done) and exit 130. Before
+Hydra acts on any of the config, :mod:`mpclab.preflight` checks that it builds nothing but
+registered components.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from mpclab.config import CONF_DIR
 from mpclab.errors import bad_input_message
 from mpclab.help import text as help_text
 from mpclab.origin import RunOrigin
+from mpclab.preflight import check_command_line
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
@@ -179,6 +182,7 @@ def cli(argv: Sequence[str] | None = None) -> int:
     os.environ[_FULL_ERROR] = "1"
     error: Exception | None = None
     try:
+        check_command_line(args)  # before Hydra acts on the config (logging, callbacks)
         with signals_interrupt():  # SIGTERM, SIGHUP: as Ctrl-C, the steps so far recorded
             main()
     except _TaskError as wrapped:

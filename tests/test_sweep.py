@@ -129,7 +129,10 @@ import time
 
 from hydra.core.hydra_config import HydraConfig
 
+from mpclab.registry import register_target
 
+
+@register_target  # a config may build it (the config lists this module under plugins)
 def scenario(plant, rng, **options):
     if "seed=1" in HydraConfig.get().overrides.task:
         {fault}
@@ -148,7 +151,7 @@ def faulty_sweep(tmp_path: Path, fault: str, *overrides: str) -> tuple[pd.DataFr
     (tmp_path / "faulty.py").write_text(FAULTY.format(real=real, fault=fault))
     out_dir = tmp_path / "sweep"
     cmd = [sys.executable, "-m", "mpclab", "-m", *base, "scenario._target_=faulty.scenario",
-           "seed=0,1,2,3", *overrides, f"hydra.sweep.dir={out_dir}"]
+           "plugins=[faulty]", "seed=0,1,2,3", *overrides, f"hydra.sweep.dir={out_dir}"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "PYTHONPATH": str(tmp_path)})
     out = proc.stdout + proc.stderr

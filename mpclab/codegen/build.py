@@ -69,9 +69,23 @@ def host_key(flags: Sequence[str]) -> str:
     return "\n".join(sorted(set(keep))) or platform.machine()
 
 
-#: seconds per kB of C the compile takes, for the notice's estimate (the Zumo NLP's 1530 kB
-#: took 10.3 s at -O1 on a 2-core AMD EPYC; -O0 is faster, -O2 and -O3 slower)
-COMPILE_S_PER_KB = 0.007
+#: seconds the compile of ``kb`` kB of C takes, ``S_PER_KB * kb + S_PER_KB2 * kb**2``, for
+#: the notices' estimates: fitted to the Zumo NLPs at -O1 on a 2-core AMD EPYC (0.85 to 17 MB
+#: of C, 7 to 290 s; -O0 is faster, -O2 and -O3 slower)
+COMPILE_S_PER_KB = 5.3e-3
+COMPILE_S_PER_KB2 = 6.7e-7
+
+
+def compile_seconds(kb: float) -> float:
+    """The rough wall time of compiling ``kb`` kB of C at ``-O1`` [s]."""
+    return COMPILE_S_PER_KB * kb + COMPILE_S_PER_KB2 * kb * kb
+
+
+def rough(seconds: float) -> str:
+    """A rough duration in words: ``12 s``, ``5 min``, ``31 h``."""
+    if seconds < 90:
+        return f"{max(1, round(seconds))} s"
+    return f"{round(seconds / 60)} min" if seconds < 5400 else f"{round(seconds / 3600)} h"
 
 
 def announce(message: str) -> None:
@@ -119,7 +133,7 @@ def compile_shared(
     tmp_lib = src_name[:-2] + ".so"
     kb = len(source) // 1000
     announce(f"compiling {prefix} ({kb} kB of C, {' '.join(flags) or 'no flags'}; roughly "
-             f"{max(1, round(kb * COMPILE_S_PER_KB))} s): once, then cached in {folder}")
+             f"{rough(compile_seconds(kb))}): once, then cached in {folder}")
     t0 = time.perf_counter()
     try:
         subprocess.run([cc, "-fPIC", "-shared", *flags, src_name, "-o", tmp_lib, *libs, "-lm"],
