@@ -5,13 +5,15 @@ position ``p`` the field is the boundary's tangent, turned so that the boundary 
 robot's ``side``, plus a correction along the boundary's normal that restores the
 ``clearance``::
 
-    v(p) = t(p) + gain (clearance - d(p)) / clearance n(p)
+    v(p) = t(p) + gain clip((clearance - d(p)) / clearance, -1, 1) n(p)
 
 where ``d`` is the distance to the nearest point and ``n`` the unit vector from the points
 to ``p`` (soft-minimum weighted, so that the field does not jump between two points of a
 sparse scan). Its streamline from ``p`` keeps the clearance along straight stretches, rounds
 a convex corner (an end of a wall) on a circle of that radius, and turns away before a
-concave one (another part of the boundary comes nearer). Sampled at a speed times the controller's period, the streamline is a reference
+concave one (another part of the boundary comes nearer). The gain is high (5 by default):
+where several parts of a boundary are about the clearance away (a junction of walls), a
+weak correction leaves the tangents to circle the spot, and the path with them. Sampled at a speed times the controller's period, the streamline is a reference
 over the horizon: a controller tracking it follows the boundary.
 """
 
@@ -45,9 +47,10 @@ def nearest(p: FloatArray, points: FloatArray, tau: float = 0.01) -> tuple[float
 
 
 def boundary_field(
-    p: FloatArray, points: FloatArray, clearance: float, side: Side, gain: float = 1.0,
+    p: FloatArray, points: FloatArray, clearance: float, side: Side, gain: float = 5.0,
 ) -> FloatArray:
-    """The unit direction of the field at ``p`` ``(2,)`` along ``points`` ``(n, 2)``."""
+    """The unit direction of the field at ``p`` ``(2,)`` along ``points`` ``(n, 2)``
+    (``gain``: the weight of the correction toward the clearance)."""
     d, n = nearest(p, points)
     n = n / max(float(np.linalg.norm(n)), 1e-12)
     t = np.array([n[1], -n[0]]) if side is Side.right else np.array([-n[1], n[0]])
@@ -57,7 +60,7 @@ def boundary_field(
 
 def streamline(
     p: FloatArray, points: FloatArray, clearance: float, side: Side, spacing: float, n: int,
-    step: float = 0.01, gain: float = 1.0,
+    gain: float = 5.0, step: float = 0.01,
 ) -> FloatArray:
     """``(n + 1, 3)``: ``p`` and the points every ``spacing`` of arc length along the field's
     streamline from it (steps of at most ``step``, midpoint rule), each with the direction

@@ -82,6 +82,8 @@ class Bug2(Supervisor):
         the wall).
     clearance
         The path's distance from the followed boundary's detected points [m].
+    clearance_gain
+        How hard the path turns toward that distance (the field's ``gain``).
     side
         ``right`` or ``left``: the side of the robot the followed boundary stays on.
     stuck_window
@@ -105,6 +107,7 @@ class Bug2(Supervisor):
         run_link: float = 0.15,
         path_speed: float = 0.0,
         clearance: float = 0.08,
+        clearance_gain: float = 5.0,
         side: Side | str = Side.right,
         stuck_window: float = 0.0,
         stuck_progress: float = 0.02,
@@ -128,6 +131,7 @@ class Bug2(Supervisor):
         self.run_link = number(run_link, "supervisor.run_link", above=0)
         self.path_speed = number(path_speed, "supervisor.path_speed (0: off)", at_least=0)
         self.clearance = number(clearance, "supervisor.clearance", above=0)
+        self.clearance_gain = number(clearance_gain, "supervisor.clearance_gain", above=0)
         self.side = parse_choice(Side, side, "supervisor.side")
         self.stuck_window = number(stuck_window, "supervisor.stuck_window (0: off)",
                                    at_least=0)
@@ -207,7 +211,7 @@ class Bug2(Supervisor):
         if not len(points):
             return None
         path = streamline(self._last, points, self.clearance, self.side,
-                          self.path_speed * dt, horizon)
+                          self.path_speed * dt, horizon, self.clearance_gain)
         ref = np.tile(self._goal_state, (horizon + 1, 1))
         ref[:, self._ip] = path[:, :2]
         if self._ith is not None:  # unwrapped from the robot's heading
