@@ -4,12 +4,18 @@
 instant the state was measured, and the simulator integrates the controller's own model.
 :class:`SimWorld` adds, each on its own key:
 
-* **latency** (``latency``: ``none``, ``measured`` or a number of ms; ``latency_scale``): the
-  input computed from the state at ``t_k`` acts from ``t_k + tau``; the input applied before
-  it holds until then, and the step is integrated in two pieces across the switch. A solve
-  whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control period) is a
-  deadline miss: its input never acts, and ``deadline_policy`` says what does (``hold`` the
-  applied input, or ``plan``: the next input of the last plan that met its deadline).
+* **latency** (``latency``: ``none``, ``measured``, a number of ms or ``one_sample``;
+  ``latency_scale``): the input computed from the state at ``t_k`` acts from ``t_k + tau``;
+  the input applied before it holds until then, and the step is integrated in two pieces
+  across the switch. ``one_sample`` is the fixed one-sample delay of embedded loops: the
+  controller computes during ``[t_k, t_k+1)`` from the state predicted at ``t_k+1`` and its
+  input acts from ``t_k+1``, however long the solve took. A solve whose ``tau`` exceeds the
+  **deadline** (``deadline_ms``, default the control period) is a deadline miss, and
+  ``deadline_policy`` says what happens: ``hold`` (its input never acts; the applied one
+  holds), ``plan`` (its input never acts; the next input of the last plan that met its
+  deadline does) or ``late_apply`` (its input acts when it is ready, and the board is busy
+  until then: the next solve starts at the first sample after it, the samples between are
+  skipped).
 * **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
   any plant's, ``noise.range_std``): the controller
   and the supervisor see a noisy state; range readings are taken from the true pose, get
@@ -47,11 +53,13 @@ class Latency(StrEnum):
     none = "none"
     measured = "measured"
     fixed = "fixed"  # given as a number of ms
+    one_sample = "one_sample"  # computed from the predicted next state, acts one period late
 
 
 class DeadlinePolicy(StrEnum):
     hold = "hold"  # the input applied before holds for the period
     plan = "plan"  # the next input of the last plan that met its deadline
+    late_apply = "late_apply"  # acts when ready; the solves it overran are skipped
 
 
 @dataclass
@@ -69,10 +77,10 @@ class DisturbanceConf:
 class SimConf:
     _target_: str = "mpclab.world.realism.SimWorld"
     name: str = "nominal"
-    latency: Any = "none"          # none | measured | a number of ms
+    latency: Any = "none"          # none | measured | a number of ms | one_sample
     latency_scale: float = 1.0     # factor on the latency (a slower target)
     deadline_ms: float | None = None  # default: the control period
-    deadline_policy: str = "hold"  # hold | plan
+    deadline_policy: str = "hold"  # hold | plan | late_apply
     noise: NoiseConf = field(default_factory=NoiseConf)
     disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
     plant_params: dict[str, float] = field(default_factory=dict)
@@ -81,11 +89,20 @@ class SimConf:
 
 @dataclass
 class Timing:
-    """When a step's input acts: ``latency_s`` after the measurement, or never (a miss)."""
+    """When a step's input acts: ``latency_s`` after the measurement, or never (a miss
+    under ``hold`` or ``plan``); the loop's next controller call comes ``periods`` control
+    periods later (more than one: ``late_apply``'s board was busy)."""
 
     latency_s: float
     missed: bool
     applied: FloatArray  # the input in effect after the switch
+    late: bool = False  # a missed deadline whose input acts when it is ready (late_apply)
+    periods: int = 1
+
+    @property
+    def switch_s(self) -> float:
+        """When the step's input starts to act, after the measurement (NaN: never)."""
+        return math.nan if self.missed and not self.late else self.latency_s
 
 
 @component("sim", "sim", SimConf, open_keys=(
@@ -149,11 +166,15 @@ class SimWorld:
         self._walk = bool(self.walk_std.any())
         self._plan: FloatArray | None = None  # the inputs of the last plan in time
         self._plan_age = 0
+        self._expected_s = self.dt if self.latency is Latency.one_sample else \
+            self.fixed_latency_s * self.latency_scale
 
     # ---------------------------------------------------------------- what it adds
 
     def reset(self, nu: int) -> None:
         self._plan, self._plan_age = None, 0
+        if self.latency is Latency.measured:
+            self._expected_s = 0.0
         self.applied = np.zeros(nu)
 
     def measure(self, x: FloatArray) -> FloatArray:
@@ -169,6 +190,17 @@ class SimWorld:
         noisy = ranges + self.range_std * self.rng.standard_normal(ranges.shape)
         return np.where(np.isfinite(ranges), np.maximum(noisy, 0.0), ranges)
 
+    @property
+    def predicts(self) -> bool:
+        """Whether the controller computes from the state predicted over the latency
+        (``one_sample``: the state at the next sample)."""
+        return self.latency is Latency.one_sample
+
+    def expected_latency_s(self) -> float:
+        """The latency the coming solve's input is expected to act after: the fixed one,
+        one period (``one_sample``) or the last measured one (0 before the first)."""
+        return self._expected_s
+
     def timing(self, u: FloatArray, u_pred: FloatArray, solve_time_s: float) -> Timing:
         """When the input ``u`` (first of the plan ``u_pred``) acts, given the solve took
         ``solve_time_s``."""
@@ -176,11 +208,18 @@ class SimWorld:
             tau = 0.0
         elif self.latency is Latency.measured:
             tau = solve_time_s * self.latency_scale
+        elif self.latency is Latency.one_sample:
+            tau = self.dt
         else:
             tau = self.fixed_latency_s * self.latency_scale
-        if tau <= self.deadline_s:
+        self._expected_s = tau
+        if tau <= self.deadline_s or self.latency is Latency.one_sample:
             self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
             return Timing(tau, False, np.asarray(u, dtype=float))
+        if self.policy is DeadlinePolicy.late_apply:  # busy until ready, free at the next sample
+            periods = max(1, math.ceil(tau / self.dt - 1e-9))
+            self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
+            return Timing(tau, True, np.asarray(u, dtype=float), late=True, periods=periods)
         self._plan_age += 1
         held = self.applied
         if self.policy is DeadlinePolicy.plan and self._plan is not None:
@@ -189,22 +228,23 @@ class SimWorld:
         return Timing(tau, True, held)
 
     def pieces(self, timing: Timing) -> list[tuple[FloatArray, float]]:
-        """The inputs that act over the coming control period, in order, with how long
+        """The inputs that act until the next controller call, in order, with how long
         each holds ``[(input, duration [s])]``: the applied input until the switch, the new
-        one after it (a missed deadline: one input for the whole period)."""
-        dt, tau = self.dt, timing.latency_s
-        if timing.missed or tau <= 0.0:
-            return [(timing.applied, dt)]
-        if tau >= dt:  # exactly at the deadline: the new input acts from the next period
-            return [(self.applied, dt)]
-        return [(self.applied, tau), (timing.applied, dt - tau)]
+        one after it (a missed deadline under ``hold`` or ``plan``: one input for the whole
+        period; ``late_apply``: over as many periods as the board was busy)."""
+        span, tau = self.dt * timing.periods, timing.latency_s
+        if timing.missed and not timing.late or tau <= 0.0:
+            return [(timing.applied, span)]
+        if tau >= span:  # exactly at the end: the new input acts from the next call
+            return [(self.applied, span)]
+        return [(self.applied, tau), (timing.applied, span - tau)]
 
     def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
         """The true state one control period later: the :meth:`pieces` integrated one after
         the other, then the disturbance."""
         for u, duration in self.pieces(timing):
             x = self.plant.step(x, u, duration)
-        dt = self.dt
+        dt = self.dt * timing.periods
         self.applied = timing.applied
         if self._walk:
             x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
@@ -216,6 +256,7 @@ class SimWorld:
             "sim": self.name,
             "sim_latency": (f"{1e3 * self.fixed_latency_s:g} ms"
                             if self.latency is Latency.fixed else self.latency.value),
+            "sim_deadline_policy": self.policy.value,
             "sim_latency_scale": self.latency_scale,
             "sim_plant_params": dict(self.plant_params),
         }
@@ -223,7 +264,8 @@ class SimWorld:
 
 def _latency(value: Any) -> tuple[Latency, float]:
     if isinstance(value, bool):
-        raise ConfigError(f"sim.latency must be none, measured or a number of ms, got {value}")
+        raise ConfigError(f"sim.latency must be none, measured, one_sample or a number of ms, "
+                          f"got {value}")
     if isinstance(value, int | float):
         return Latency.fixed, _nonneg(value, "sim.latency") / 1e3
     text = str(value)
