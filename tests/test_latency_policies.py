@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from conftest import compose_cfg
 from mpclab import record
 from mpclab.controllers.base import shift_by
+from mpclab.errors import ConfigError
 from mpclab.experiment import build_run
 from mpclab.plants.kinematic_car import KinematicCar
 from mpclab.sim import simulate
@@ -100,3 +102,52 @@ def test_previous_input_is_what_the_plant_received_on_a_miss():
     ctrl = run.controller
     np.testing.assert_array_equal(ctrl.previous_input, np.zeros(run.plant.nu))
     assert np.abs(ctrl.previous_plan.u).max() > 0
+
+
+def _log(result: object) -> object:
+    return result.steps.drop(columns=["solve_time_s", "solve_cpu_s"])  # timings differ
+
+
+def test_realistic_bug2_repeats_exactly_with_the_same_seed(run_cfg):
+    """The realistic preset draws its latencies, seeded, from a recorded profile: two runs
+    of the same config and seed give the same step log, latencies included."""
+    cfg = ["+experiment=zumo_bug2", "sim=realistic", "seed=3"]
+    a, _ = run_cfg(cfg, name="a")
+    b, _ = run_cfg(cfg, name="b")
+    assert a.summary["sim_latency"] == "recorded"
+    assert a.steps["latency_s"].notna().sum() > 10
+    assert _log(a).equals(_log(b))
+
+
+def test_recorded_latency_reads_a_runs_step_log(tmp_path):
+    plant = KinematicCar()
+    steps = tmp_path / "steps.parquet"
+    pd.DataFrame({"t": [0.0, 0.1, 0.2], "latency_s": [0.01, 0.03, np.nan]}).to_parquet(steps)
+    draws = []
+    for seed in (5, 5, 6):
+        w = SimWorld(plant, seed=seed, latency="recorded", latency_profile=str(steps))
+        w.reset(plant.nu)
+        assert w.expected_latency_s() == pytest.approx(0.02)  # the median
+        u = np.zeros((1, plant.nu))
+        draws.append([w.timing(u[0], u, 9.0).latency_s for _ in range(40)])
+    assert set(np.round(draws[0], 9)) == {0.01, 0.03}  # only recorded values, NaN dropped
+    assert draws[0] == draws[1] and draws[0] != draws[2]  # seeded
+
+
+@pytest.mark.parametrize("profile, words", [
+    (None, ["sim.latency_profile", "latency_s"]),
+    ("no/such.csv", ["sim.latency_profile", "no/such.csv"]),
+    ("sim/nominal.yaml", ["sim.latency_profile", ".csv or .parquet"]),
+])
+def test_a_bad_latency_profile_is_refused_by_name(profile, words):
+    with pytest.raises(ConfigError) as err:
+        SimWorld(KinematicCar(), latency="recorded", latency_profile=profile)
+    for word in words:
+        assert word in str(err.value), str(err.value)
+
+
+def test_a_profile_without_latencies_is_refused(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,solve\n0,1\n")
+    with pytest.raises(ConfigError, match="no latency_s column; columns: t, solve"):
+        SimWorld(KinematicCar(), latency="recorded", latency_profile=str(bad))

@@ -140,7 +140,7 @@ def test_bug2_arrives_with_a_larger_wheel_and_position_noise(run_cfg):
 def test_realistic_preset_is_recorded(run_cfg):
     result, out = run_cfg(["+experiment=car_cvxpy", "sim=realistic", "recorder=rerun"])
     assert result.summary["sim"] == "realistic"
-    assert result.summary["sim_latency"] == "measured"
+    assert result.summary["sim_latency"] == "recorded"
     verify(out / "run.rrd")
     rows = read_rrd(out / "run.rrd")
     n = result.summary["n_steps"]
