@@ -78,9 +78,9 @@ def main() -> None:
     for study, cases in CASES.items():
         for label, overrides in cases:
             r = run(overrides)
-            rms = r["rms_position"]
+            rms, arrival = r["rms_position"], r["arrival_time_s"]
             rows.append({"study": study, "loop": label, "status": r["status"],
-                         "arrival [s]": r["arrival_time_s"],
+                         "arrival [s]": "" if arrival is None else f"{arrival:g}",
                          "misses / steps": f"{r['deadline_misses']} / {r['n_steps']}",
                          "position RMS [m]": "" if rms is None else f"{rms:.3f}"})
             print(rows[-1], flush=True)
