@@ -5,20 +5,20 @@ instant the state was measured, and the simulator integrates the controller's ow
 :class:`SimWorld` adds, each on its own key:
 
 * **latency** (``latency``: ``none``, ``measured``, a number of ms, ``one_sample`` or
-  ``recorded``; ``latency_scale``): the input computed from the state at ``t_k`` acts from ``t_k + tau``;
-  the input applied before it holds until then, and the step is integrated in two pieces
-  across the switch. ``one_sample`` is the fixed one-sample delay of embedded loops: the
-  controller computes during ``[t_k, t_k+1)`` from the state predicted at ``t_k+1`` and its
-  input acts from ``t_k+1``, however long the solve took. ``recorded`` draws each latency,
-  seeded, from a recorded distribution (``latency_profile``: a CSV or Parquet file with a
-  ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run repeats exactly;
-  ``measured`` is the run's own solve time, which differs from run to run. A solve whose ``tau`` exceeds the
-  **deadline** (``deadline_ms``, default the control period) is a deadline miss, and
-  ``deadline_policy`` says what happens: ``hold`` (its input never acts; the applied one
-  holds), ``plan`` (its input never acts; the next input of the last plan that met its
-  deadline does) or ``late_apply`` (its input acts when it is ready, and the board is busy
-  until then: the next solve starts at the first sample after it, the samples between are
-  skipped).
+  ``recorded``; ``latency_scale``): the input computed from the state at ``t_k`` acts from
+  ``t_k + tau``; the input applied before it holds until then, and the step is integrated
+  in two pieces across the switch. ``one_sample`` is the fixed one-sample delay of embedded
+  loops: the controller computes during ``[t_k, t_k+1)`` from the state predicted at
+  ``t_k+1`` and its input acts from ``t_k+1``, however long the solve took. ``recorded``
+  draws each latency, seeded, from a recorded distribution (``latency_profile``: a CSV or
+  Parquet file with a ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run
+  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run.
+  A solve whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control
+  period) is a deadline miss, and ``deadline_policy`` says what happens: ``hold`` (its input
+  never acts; the applied one holds), ``plan`` (its input never acts; the next input of the
+  last plan that met its deadline does) or ``late_apply`` (its input acts when it is ready,
+  and the board is busy until then: the next solve starts at the first sample after it, the
+  samples between are skipped).
 * **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
   any plant's, ``noise.range_std``): the controller
   and the supervisor see a noisy state; range readings are taken from the true pose, get
@@ -41,9 +41,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any
-
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -256,15 +255,16 @@ class SimWorld:
         one after it (a missed deadline under ``hold`` or ``plan``: one input for the whole
         period; ``late_apply``: over as many periods as the board was busy)."""
         span, tau = self.dt * timing.periods, timing.latency_s
-        if timing.missed and not timing.late or tau <= 0.0:
+        if (timing.missed and not timing.late) or tau <= 0.0:
             return [(timing.applied, span)]
         if tau >= span:  # exactly at the end: the new input acts from the next call
             return [(self.applied, span)]
         return [(self.applied, tau), (timing.applied, span - tau)]
 
     def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
-        """The true state one control period later: the :meth:`pieces` integrated one after
-        the other, then the disturbance."""
+        """The true state at the next controller call (one control period later, more under
+        ``late_apply``): the :meth:`pieces` integrated one after the other, then the
+        disturbance."""
         for u, duration in self.pieces(timing):
             x = self.plant.step(x, u, duration)
         dt = self.dt * timing.periods
