@@ -88,7 +88,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     x = scen.x0.copy()  # the true state
     ctrl.reset(x)
     sup.reset(x, scen.goal)
-    log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world)
+    log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world, dt)
     # the closest approach between samples, along the path the simulated plant drives
     guard = ContinuousClearance(world.plant, scen.obstacles, scen.robot_radius)
     status, error, k, touched = "error", None, 0, False
@@ -111,11 +111,15 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                 break
             measured = world.measure(x)
             ctx = sense(run, t, x, measured)
+            # what acts until this step's input does, and when that is expected
+            ctx.applied, ctx.latency_s = world.applied, world.expected_latency_s()
+            ctx.predict = world.predicts
             mode = ctx.mode
             c0, t0 = time.thread_time(), time.perf_counter()
             cs = ctrl.step(t, measured, ctx)
             solve_time = time.perf_counter() - t0
             timing = world.timing(cs.u, cs.u_pred, solve_time)
+            ctrl.received(timing.applied)  # the input-rate term's previous input
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step
             cs.info[CPU_COLUMN] = time.thread_time() - c0  # unlike wall time, not inflated
             # when other processes take the core (parallel sweeps)
@@ -129,9 +133,9 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                     timing)
             rec.log_step(k, t, x, cs, ctx)
             x = world.advance(x, timing)
+            k += timing.periods  # more than one: the board was busy (late_apply)
             if not np.all(np.isfinite(x)):
-                raise FloatingPointError(f"state became non-finite at t={t + dt:.3f}: {x}")
-            k += 1
+                raise FloatingPointError(f"state became non-finite at t={k * dt:.3f}: {x}")
             if progress is not None:
                 progress(k * dt, scen.t_max)
     except Exception as exc:  # the record is still written, with the error in it
@@ -179,10 +183,11 @@ class _StepLog:
 
     def __init__(
         self, plant: Plant, horizon: int, extra: tuple[str, ...] = (),
-        world: SimWorld | None = None,
+        world: SimWorld | None = None, dt: float = 0.0,
     ) -> None:
         self.plant = plant
         self.horizon = horizon
+        self.dt = dt  # the control period, between a horizon's nodes
         #: what the world adds to the log: the measured state, the input's timing
         self.noisy = world is not None and world.noisy
         self.delayed = world is not None and world.delayed
@@ -274,7 +279,8 @@ class _StepLog:
             miss[: len(self.timing)] = [tm.missed for tm in self.timing]
             steps["latency_s"] = lat
             steps["deadline_miss"] = miss
-            steps["switch_t"] = np.where(miss, np.nan, steps["t"].to_numpy() + lat)
+            switch = padded([tm.switch_s for tm in self.timing], 1)[:, 0]
+            steps["switch_t"] = steps["t"].to_numpy() + switch
             applied = padded([tm.applied for tm in self.timing], p.nu)
             for j, label in enumerate(p.inputs):
                 steps[f"applied_{label}"] = applied[:, j]
@@ -287,7 +293,7 @@ class _StepLog:
             return pd.DataFrame({c: pd.Series(dtype=float) for c in cols})
         X = np.stack(self.x_pred)  # (m, H+1, nx)
         U = np.concatenate([np.stack(self.u_pred), np.full((m, 1, p.nu), np.nan)], axis=1)
-        dt = self.t[1] - self.t[0] if len(self.t) > 1 else 0.0
+        dt = self.dt
         step = np.repeat(np.arange(m), H + 1)
         k = np.tile(np.arange(H + 1), m)
         hz = pd.DataFrame({"step": step, "k": k, "t": np.asarray(self.t[:m])[step] + k * dt})

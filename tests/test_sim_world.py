@@ -140,7 +140,7 @@ def test_bug2_arrives_with_a_larger_wheel_and_position_noise(run_cfg):
 def test_realistic_preset_is_recorded(run_cfg):
     result, out = run_cfg(["+experiment=car_cvxpy", "sim=realistic", "recorder=rerun"])
     assert result.summary["sim"] == "realistic"
-    assert result.summary["sim_latency"] == "measured"
+    assert result.summary["sim_latency"] == "recorded"
     verify(out / "run.rrd")
     rows = read_rrd(out / "run.rrd")
     n = result.summary["n_steps"]
@@ -149,11 +149,11 @@ def test_realistic_preset_is_recorded(run_cfg):
 
 
 @pytest.mark.parametrize("override, words", [
-    ("sim.latency=fast", ["sim.latency", "fast", "measured"]),
+    ("sim.latency=fast", ["sim.latency", "fast", "measured", "one_sample"]),
     ("sim.latency=-5", ["sim.latency", "-5"]),
     ("sim.latency_scale=0", ["sim.latency_scale", "> 0"]),
     ("sim.deadline_ms=500", ["sim.deadline_ms", "100 ms"]),
-    ("sim.deadline_policy=skip", ["sim.deadline_policy", "skip", "hold", "plan"]),
+    ("sim.deadline_policy=skip", ["sim.deadline_policy", "skip", "hold", "plan", "late_apply"]),
     ("sim.noise.state_std.pz=0.1", ["sim.noise.state_std", "pz", "px"]),
     ("sim.noise.state_std.px=-1", ["sim.noise.state_std.px", "-1"]),
     ("sim.noise.range_std=nan", ["sim.noise.range_std", "nan"]),

@@ -49,6 +49,13 @@ class StepContext:
     follow
         ``(n,)``: 1 for a detected point of the boundary the supervisor follows, else 0
         (None: none followed).
+    applied
+        The input acting on the plant until this step's input does (None: not known).
+    latency_s
+        When this step's input is expected to act, after the measurement [s].
+    predict
+        The loop computes from the state predicted over ``latency_s`` (a one-sample delay),
+        whatever the controller's ``delay_compensation``.
     """
 
     goal: FloatArray
@@ -58,6 +65,9 @@ class StepContext:
     active: frozenset[str] | None = None
     mode: str = ""
     follow: FloatArray | None = None
+    applied: FloatArray | None = None
+    latency_s: float = 0.0
+    predict: bool = False
 
 
 @dataclass
@@ -131,21 +141,44 @@ class Controller(ABC):
     #: a filter of the applied input (:mod:`mpclab.controllers.safety_filter`), or None
     safety_filter: Any = None
 
-    def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
+    def __init__(
+        self, plant: Plant, horizon: int, dt: float, delay_compensation: bool = False,
+    ) -> None:
         if int(horizon) < self.min_horizon:
             raise ConfigError(f"controller.horizon must be >= {self.min_horizon}, got {horizon}")
+        if not isinstance(delay_compensation, bool):
+            raise ConfigError(f"controller.delay_compensation must be true or false, "
+                              f"got {delay_compensation!r}")
         self.plant = plant
         self.horizon = int(horizon)
         self.dt = number(dt, "controller.dt", above=0)
+        self.delay_compensation = delay_compensation
         self._plan: ControlStep | None = None
+        self._received: FloatArray | None = None
 
     def reset(self, x0: npt.ArrayLike) -> None:
         """Forget the previous plan before a new run from ``x0``."""
-        self._plan = None
+        self._plan, self._received = None, None
+
+    def received(self, u: npt.ArrayLike) -> None:
+        """Tell the controller the input the plant received after its last call (on a
+        missed deadline not its own): :attr:`previous_input` from then on."""
+        self._received = np.asarray(u, dtype=float).copy()
 
     def step(self, t: float, x: npt.ArrayLike, ctx: StepContext) -> ControlStep:
-        """Solve at time ``t`` from state ``x``; never raises for a failed solve."""
+        """Solve at time ``t`` from state ``x``; never raises for a failed solve.
+
+        With ``delay_compensation`` (or a loop that asks for it, ``ctx.predict``) and an
+        expected latency ``ctx.latency_s``, it solves from the state the plant's own step
+        predicts at ``t + latency_s`` under the input in effect (``ctx.applied``), with the
+        reference shifted by the same time: the input is computed for when it acts.
+        """
         x = np.asarray(x, dtype=float)
+        if (self.delay_compensation or ctx.predict) and ctx.latency_s > 0 \
+                and ctx.applied is not None:
+            x = self.plant.step(x, ctx.applied, ctx.latency_s)
+            ctx = replace(ctx, target=shift_by(ctx.target, ctx.latency_s / self.dt))
+            t = t + ctx.latency_s
         try:
             res = self._solve(t, x, ctx)
         except Exception as exc:  # a solver crash must not end a sweep: record and fall back
@@ -195,8 +228,11 @@ class Controller(ABC):
 
     @property
     def previous_input(self) -> FloatArray:
-        """The input applied at the last step (zero, clipped to the bounds, before the first),
-        for input-rate terms."""
+        """The input the plant received after the last step (:meth:`received`; else the
+        last step's own; zero, clipped to the bounds, before the first), for input-rate
+        terms and warm starts."""
+        if self._received is not None:
+            return self._received
         if self._plan is None:
             return self.plant.clip_input(np.zeros(self.plant.nu))
         return np.asarray(self._plan.u, dtype=float)
@@ -240,3 +276,11 @@ def terminal_rows(plant: Plant, terminal: Any) -> list[tuple[int, float]]:
 def shift(a: FloatArray) -> FloatArray:
     """Drop the first row of a trajectory and repeat the last one."""
     return np.concatenate([a[1:], a[-1:]], axis=0)
+
+
+def shift_by(a: FloatArray, steps: float) -> FloatArray:
+    """A trajectory sampled ``steps`` (a fraction of) rows later: linear between rows, the
+    last row held beyond the end."""
+    rows = np.arange(len(a)) + steps
+    grid = np.arange(len(a))
+    return np.stack([np.interp(rows, grid, a[:, i]) for i in range(a.shape[1])], axis=1)

@@ -110,6 +110,9 @@ class CvxpyMPC(Controller):
         ``auto`` (default: ``direct`` with Clarabel, else ``problem``), ``direct`` (the
         compiled data straight into a persistent Clarabel solver) or ``problem``
         (``Problem.solve`` every step). Both give the same solution.
+    delay_compensation
+        Solve from the state predicted over the loop's expected latency with the input in
+        effect, the reference shifted by the same time (``Controller.step``).
     """
 
     def __init__(
@@ -130,8 +133,9 @@ class CvxpyMPC(Controller):
         terminal_constraint: Mapping[str, float] | None = None,
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
+        delay_compensation: bool = False,
     ) -> None:
-        super().__init__(plant, horizon, dt)
+        super().__init__(plant, horizon, dt, delay_compensation)
         self.solver = parse_choice(CvxpySolver, solver, "controller.solver").value
         self.warm_start = bool(warm_start)
         self.sl = parse_choice(SlMode, sl, "controller.sl")

@@ -40,6 +40,9 @@ class NNController(Controller):
     scenario
         Injected when built from config: its range sensor must give the rays the net was
         trained on.
+    delay_compensation
+        Solve from the state predicted over the loop's expected latency with the input in
+        effect, the reference shifted by the same time (``Controller.step``).
     """
 
     min_horizon = 0
@@ -48,9 +51,10 @@ class NNController(Controller):
     solved_problem = Problem.policy
 
     def __init__(
-        self, plant: Plant, weights: str, dt: float = 0.2, scenario: Scenario | None = None
+        self, plant: Plant, weights: str, dt: float = 0.2, scenario: Scenario | None = None,
+        delay_compensation: bool = False,
     ) -> None:
-        super().__init__(plant, 0, dt)
+        super().__init__(plant, 0, dt, delay_compensation)
         path = Path(weights)
         try:
             self.mlp = MLP.load(path if path.is_absolute() else ROOT / path)

@@ -116,6 +116,9 @@ class ScheduledMPC(Controller):
         Step through the generated C of this controller (compiled with the machine's C
         compiler, cached; :mod:`mpclab.controllers.scheduled_c`) instead of Python: switched
         mode without hysteresis, solver ``auto``, ``closed_form`` or ``active_set``.
+    delay_compensation
+        Solve from the state predicted over the loop's expected latency with the input in
+        effect, the reference shifted by the same time (``Controller.step``).
     """
 
     log_columns = ("op",)
@@ -135,8 +138,9 @@ class ScheduledMPC(Controller):
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
         codegen: bool = False,
+        delay_compensation: bool = False,
     ) -> None:
-        super().__init__(plant, horizon, dt)
+        super().__init__(plant, horizon, dt, delay_compensation)
         self.mode = parse_choice(ScheduleMode, mode, "controller.mode")
         self.solver = parse_choice(ScheduledQpSolver, solver, "controller.solver")
         T, nx, nu = self.horizon, plant.nx, plant.nu

@@ -4,12 +4,21 @@
 instant the state was measured, and the simulator integrates the controller's own model.
 :class:`SimWorld` adds, each on its own key:
 
-* **latency** (``latency``: ``none``, ``measured`` or a number of ms; ``latency_scale``): the
-  input computed from the state at ``t_k`` acts from ``t_k + tau``; the input applied before
-  it holds until then, and the step is integrated in two pieces across the switch. A solve
-  whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control period) is a
-  deadline miss: its input never acts, and ``deadline_policy`` says what does (``hold`` the
-  applied input, or ``plan``: the next input of the last plan that met its deadline).
+* **latency** (``latency``: ``none``, ``measured``, a number of ms, ``one_sample`` or
+  ``recorded``; ``latency_scale``): the input computed from the state at ``t_k`` acts from
+  ``t_k + tau``; the input applied before it holds until then, and the step is integrated
+  in two pieces across the switch. ``one_sample`` is the fixed one-sample delay of embedded
+  loops: the controller computes during ``[t_k, t_k+1)`` from the state predicted at
+  ``t_k+1`` and its input acts from ``t_k+1``, however long the solve took. ``recorded``
+  draws each latency, seeded, from a recorded distribution (``latency_profile``: a CSV or
+  Parquet file with a ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run
+  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run.
+  A solve whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control
+  period) is a deadline miss, and ``deadline_policy`` says what happens: ``hold`` (its input
+  never acts; the applied one holds), ``plan`` (its input never acts; the next input of the
+  last plan that met its deadline does) or ``late_apply`` (its input acts when it is ready,
+  and the board is busy until then: the next solve starts at the first sample after it, the
+  samples between are skipped).
 * **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
   any plant's, ``noise.range_std``): the controller
   and the supervisor see a noisy state; range readings are taken from the true pose, get
@@ -20,8 +29,9 @@ instant the state was measured, and the simulator integrates the controller's ow
   parameters (and a finer integrator) than the one the controller predicts with; the same
   ``rhs``.
 
-Every draw comes from one generator seeded by the run's seed (a stream of its own, so a
-scenario's random layout does not change when noise is switched on).
+Every draw comes from generators seeded by the run's seed (streams of their own, so a
+scenario's random layout does not change when noise is switched on, nor the noise when a
+recorded latency is).
 """
 
 from __future__ import annotations
@@ -31,27 +41,35 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
+from mpclab.config import CONF_DIR
 from mpclab.errors import ConfigError, check_keys, number, parse_choice
 from mpclab.plants.base import FloatArray, Plant
 from mpclab.registry import component
 
-#: the spawn key of the world's random stream under the run's seed
+#: the spawn keys of the world's random streams under the run's seed: noise and
+#: disturbance, recorded latencies
 _STREAM = 7
+_LATENCY_STREAM = 8
 
 
 class Latency(StrEnum):
     none = "none"
     measured = "measured"
     fixed = "fixed"  # given as a number of ms
+    one_sample = "one_sample"  # computed from the predicted next state, acts one period late
+    recorded = "recorded"  # drawn, seeded, from latency_profile
 
 
 class DeadlinePolicy(StrEnum):
     hold = "hold"  # the input applied before holds for the period
     plan = "plan"  # the next input of the last plan that met its deadline
+    late_apply = "late_apply"  # acts when ready; the solves it overran are skipped
 
 
 @dataclass
@@ -69,10 +87,11 @@ class DisturbanceConf:
 class SimConf:
     _target_: str = "mpclab.world.realism.SimWorld"
     name: str = "nominal"
-    latency: Any = "none"          # none | measured | a number of ms
+    latency: Any = "none"          # none | measured | a number of ms | one_sample | recorded
     latency_scale: float = 1.0     # factor on the latency (a slower target)
+    latency_profile: str | None = None  # recorded: a .csv or .parquet with a latency_s column
     deadline_ms: float | None = None  # default: the control period
-    deadline_policy: str = "hold"  # hold | plan
+    deadline_policy: str = "hold"  # hold | plan | late_apply
     noise: NoiseConf = field(default_factory=NoiseConf)
     disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
     plant_params: dict[str, float] = field(default_factory=dict)
@@ -81,11 +100,20 @@ class SimConf:
 
 @dataclass
 class Timing:
-    """When a step's input acts: ``latency_s`` after the measurement, or never (a miss)."""
+    """When a step's input acts: ``latency_s`` after the measurement, or never (a miss
+    under ``hold`` or ``plan``); the loop's next controller call comes ``periods`` control
+    periods later (more than one: ``late_apply``'s board was busy)."""
 
     latency_s: float
     missed: bool
     applied: FloatArray  # the input in effect after the switch
+    late: bool = False  # a missed deadline whose input acts when it is ready (late_apply)
+    periods: int = 1
+
+    @property
+    def switch_s(self) -> float:
+        """When the step's input starts to act, after the measurement (NaN: never)."""
+        return math.nan if self.missed and not self.late else self.latency_s
 
 
 @component("sim", "sim", SimConf, open_keys=(
@@ -111,6 +139,7 @@ class SimWorld:
         name: str = "nominal",
         latency: Any = "none",
         latency_scale: float = 1.0,
+        latency_profile: str | None = None,
         deadline_ms: float | None = None,
         deadline_policy: str = "hold",
         noise: Mapping[str, Any] | None = None,
@@ -122,6 +151,8 @@ class SimWorld:
         self.dt = float(dt)
         self.latency, self.fixed_latency_s = _latency(latency)
         self.latency_scale = _positive(latency_scale, "sim.latency_scale")
+        self.latency_profile = latency_profile
+        self.profile_s = _profile(latency_profile) if self.latency is Latency.recorded else None
         period_ms = 1e3 * self.dt
         self.deadline_s = (self.dt if deadline_ms is None
                            else _positive(deadline_ms, "sim.deadline_ms") / 1e3)
@@ -149,11 +180,19 @@ class SimWorld:
         self._walk = bool(self.walk_std.any())
         self._plan: FloatArray | None = None  # the inputs of the last plan in time
         self._plan_age = 0
+        self._latency_rng = np.random.default_rng(
+            np.random.SeedSequence(int(seed), spawn_key=(_LATENCY_STREAM,)))
+        self._expected_s = self.dt if self.latency is Latency.one_sample else \
+            self.fixed_latency_s * self.latency_scale
+        if self.profile_s is not None:
+            self._expected_s = float(np.median(self.profile_s)) * self.latency_scale
 
     # ---------------------------------------------------------------- what it adds
 
     def reset(self, nu: int) -> None:
         self._plan, self._plan_age = None, 0
+        if self.latency is Latency.measured:
+            self._expected_s = 0.0
         self.applied = np.zeros(nu)
 
     def measure(self, x: FloatArray) -> FloatArray:
@@ -169,6 +208,18 @@ class SimWorld:
         noisy = ranges + self.range_std * self.rng.standard_normal(ranges.shape)
         return np.where(np.isfinite(ranges), np.maximum(noisy, 0.0), ranges)
 
+    @property
+    def predicts(self) -> bool:
+        """Whether the controller computes from the state predicted over the latency
+        (``one_sample``: the state at the next sample)."""
+        return self.latency is Latency.one_sample
+
+    def expected_latency_s(self) -> float:
+        """The latency the coming solve's input is expected to act after: the fixed one,
+        one period (``one_sample``), the recorded median or the last measured one (0 before
+        the first)."""
+        return self._expected_s
+
     def timing(self, u: FloatArray, u_pred: FloatArray, solve_time_s: float) -> Timing:
         """When the input ``u`` (first of the plan ``u_pred``) acts, given the solve took
         ``solve_time_s``."""
@@ -176,11 +227,21 @@ class SimWorld:
             tau = 0.0
         elif self.latency is Latency.measured:
             tau = solve_time_s * self.latency_scale
+        elif self.latency is Latency.one_sample:
+            tau = self.dt
+        elif self.profile_s is not None:
+            tau = float(self._latency_rng.choice(self.profile_s)) * self.latency_scale
         else:
             tau = self.fixed_latency_s * self.latency_scale
-        if tau <= self.deadline_s:
+        if self.latency is Latency.measured:
+            self._expected_s = tau
+        if tau <= self.deadline_s or self.latency is Latency.one_sample:
             self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
             return Timing(tau, False, np.asarray(u, dtype=float))
+        if self.policy is DeadlinePolicy.late_apply:  # busy until ready, free at the next sample
+            periods = max(1, math.ceil(tau / self.dt - 1e-9))
+            self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
+            return Timing(tau, True, np.asarray(u, dtype=float), late=True, periods=periods)
         self._plan_age += 1
         held = self.applied
         if self.policy is DeadlinePolicy.plan and self._plan is not None:
@@ -189,22 +250,24 @@ class SimWorld:
         return Timing(tau, True, held)
 
     def pieces(self, timing: Timing) -> list[tuple[FloatArray, float]]:
-        """The inputs that act over the coming control period, in order, with how long
+        """The inputs that act until the next controller call, in order, with how long
         each holds ``[(input, duration [s])]``: the applied input until the switch, the new
-        one after it (a missed deadline: one input for the whole period)."""
-        dt, tau = self.dt, timing.latency_s
-        if timing.missed or tau <= 0.0:
-            return [(timing.applied, dt)]
-        if tau >= dt:  # exactly at the deadline: the new input acts from the next period
-            return [(self.applied, dt)]
-        return [(self.applied, tau), (timing.applied, dt - tau)]
+        one after it (a missed deadline under ``hold`` or ``plan``: one input for the whole
+        period; ``late_apply``: over as many periods as the board was busy)."""
+        span, tau = self.dt * timing.periods, timing.latency_s
+        if (timing.missed and not timing.late) or tau <= 0.0:
+            return [(timing.applied, span)]
+        if tau >= span:  # exactly at the end: the new input acts from the next call
+            return [(self.applied, span)]
+        return [(self.applied, tau), (timing.applied, span - tau)]
 
     def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
-        """The true state one control period later: the :meth:`pieces` integrated one after
-        the other, then the disturbance."""
+        """The true state at the next controller call (one control period later, more under
+        ``late_apply``): the :meth:`pieces` integrated one after the other, then the
+        disturbance."""
         for u, duration in self.pieces(timing):
             x = self.plant.step(x, u, duration)
-        dt = self.dt
+        dt = self.dt * timing.periods
         self.applied = timing.applied
         if self._walk:
             x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
@@ -216,14 +279,17 @@ class SimWorld:
             "sim": self.name,
             "sim_latency": (f"{1e3 * self.fixed_latency_s:g} ms"
                             if self.latency is Latency.fixed else self.latency.value),
+            "sim_deadline_policy": self.policy.value,
             "sim_latency_scale": self.latency_scale,
+            "sim_latency_profile": self.latency_profile if self.profile_s is not None else None,
             "sim_plant_params": dict(self.plant_params),
         }
 
 
 def _latency(value: Any) -> tuple[Latency, float]:
     if isinstance(value, bool):
-        raise ConfigError(f"sim.latency must be none, measured or a number of ms, got {value}")
+        raise ConfigError(f"sim.latency must be none, measured, one_sample, recorded or a "
+                          f"number of ms, got {value}")
     if isinstance(value, int | float):
         return Latency.fixed, _nonneg(value, "sim.latency") / 1e3
     text = str(value)
@@ -236,6 +302,33 @@ def _latency(value: Any) -> tuple[Latency, float]:
     if text == Latency.fixed.value:
         raise ConfigError("sim.latency: give the fixed latency as a number of ms, e.g. 33.8")
     return parse_choice(Latency, text, "sim.latency"), 0.0
+
+
+def _profile(path: str | None) -> FloatArray:
+    """The latencies [s] of ``sim.latency_profile``: the ``latency_s`` column of a CSV or
+    Parquet file (NaN rows, as a step log's final one, dropped). A relative path is read
+    from the working folder, else from the config folder (the shipped profiles)."""
+    key = "sim.latency_profile"
+    if not path:
+        raise ConfigError(f"{key}: sim.latency=recorded needs a file with a latency_s column "
+                          f"(e.g. {key}=sim/profiles/zumo_bug2_fatrop.csv)")
+    file = Path(str(path)).expanduser()
+    if not file.is_absolute() and not file.exists() and (CONF_DIR / file).exists():
+        file = CONF_DIR / file
+    if not file.is_file():
+        raise ConfigError(f"{key}: no file {str(path)!r} (from the working folder or {CONF_DIR})")
+    if file.suffix not in (".csv", ".parquet"):
+        raise ConfigError(f"{key}: {str(path)!r} must be a .csv or .parquet file")
+    table = pd.read_parquet(file) if file.suffix == ".parquet" else \
+        pd.read_csv(file, comment="#")
+    if "latency_s" not in table:
+        raise ConfigError(f"{key}: {str(path)!r} has no latency_s column; columns: "
+                          f"{', '.join(map(str, table.columns))}")
+    values = pd.to_numeric(table["latency_s"], errors="coerce").dropna().to_numpy(dtype=float)
+    if not len(values) or not np.all(np.isfinite(values)) or values.min() < 0:
+        raise ConfigError(f"{key}: {str(path)!r}: latency_s must hold finite values >= 0 "
+                          f"(at least one)")
+    return values
 
 
 def _nonneg(value: Any, key: str) -> float:
