@@ -50,6 +50,7 @@ from mpclab.experiment import build_run, compose  # noqa: E402
 from mpclab.instantiate import build  # noqa: E402
 from mpclab.objectives.base import Objective, TermContext  # noqa: E402
 from mpclab.plants.base import Plant  # noqa: E402
+from mpclab.provenance import stamp  # noqa: E402
 from mpclab.sim import simulate  # noqa: E402
 
 #: IPOPT for the reference: tight, never stopping at the "acceptable" level, many iterations
@@ -380,6 +381,7 @@ def main() -> None:
         print(summarize(df).to_string(float_format=lambda v: f"{v:.3g}"))
     if args.csv:
         pd.concat(frames).to_csv(args.csv, index=False)
+    print(f"\n{stamp()}")
 
 
 if __name__ == "__main__":
