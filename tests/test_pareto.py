@@ -114,3 +114,20 @@ def test_tables_tool_refuses_a_bad_objective(tmp_path: Path) -> None:
         tables_main(["--pareto", "--objectives", "arrival_s,speed", "--no-figure",
                      str(tmp_path)])
     assert err.value.code == 2
+
+
+def test_two_choices_of_one_controller_are_two_backends_and_two_points() -> None:
+    """``controller=casadi_fatrop,casadi``: both record controller ``casadi``; the solver
+    their summaries record tells them apart in the tables and on the front."""
+    from mpclab.tables import _frame
+
+    rows = [{"controller": "casadi", "solver": s, "controller.horizon": h, "seed": 0,
+             "status": "arrived", "arrival_time_s": 10.0, "run_dir": f"/nowhere/{s}{h}",
+             "sweep_dir": ".", "job": "0"}
+            for s in ("fatrop", "ipopt") for h in (6, 10)]
+    df = _frame(rows, ["controller", "controller.horizon", "seed"])
+    assert sorted(df["backend"].unique()) == ["casadi:fatrop", "casadi:ipopt"]
+    pts = pareto_points(df, (ParetoObjective.arrival_s, ParetoObjective.step_p95_ms), {})
+    assert pts.attrs["keys"] == ["backend", "controller.horizon"] and len(pts) == 4
+    one = _frame([r for r in rows if r["solver"] == "fatrop"], ["controller.horizon", "seed"])
+    assert set(one["backend"]) == {"casadi"}  # one solver: the name alone, as before

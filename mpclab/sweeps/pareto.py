@@ -22,6 +22,7 @@ from omegaconf import OmegaConf
 
 from mpclab import tables
 from mpclab.lazy import pyplot
+from mpclab.registry import COMPONENTS, register_all, target
 from mpclab.tables.pareto import (
     LABELS,
     ParetoObjective,
@@ -43,10 +44,12 @@ def sweep_objectives(sweep_dir: Path) -> list[str] | None:
     return list(found) if found is not None else None
 
 
-def shipped_default(sweep_dir: Path, keys: Sequence[str]) -> dict[str, Any] | None:
+def shipped_default(sweep_dir: Path, keys: Sequence[str],
+                    backends: Sequence[str] = ()) -> dict[str, Any] | None:
     """The values the sweep's base config gives the varied parameters ``keys`` (a group's
-    value is its choice): Hydra's ``multirun.yaml`` is the config composed without the swept
-    values. None when the sweep folder has none."""
+    value is its choice; ``backend``: the base controller's name, with its solver where
+    ``backends``, the sweep's, name it so): Hydra's ``multirun.yaml`` is the config composed
+    without the swept values. None when the sweep folder has none."""
     cfg = _multirun(sweep_dir)
     if cfg is None or not keys:
         return None
@@ -57,7 +60,22 @@ def shipped_default(sweep_dir: Path, keys: Sequence[str]) -> dict[str, Any] | No
             out[k] = choices[k] if k in choices else OmegaConf.select(cfg, k, default=None)
         except Exception:  # noqa: BLE001  (an interpolation that does not resolve here)
             out[k] = None
+    if "backend" in keys:
+        out["backend"] = _base_backend(cfg, backends)
     return out
+
+
+def _base_backend(cfg: Any, backends: Sequence[str]) -> str | None:
+    """The sweep's base controller as the tables name it (``casadi:fatrop``)."""
+    register_all()
+    wanted = OmegaConf.select(cfg, "controller._target_")
+    names = [n for n, cls in COMPONENTS.get("controller", {}).items() if target(cls) == wanted]
+    solver = OmegaConf.select(cfg, "controller.solver", default=None)
+    for name in names:
+        for candidate in (f"{name}:{solver}", name):
+            if candidate in backends:
+                return candidate
+    return None
 
 
 def write_pareto(
@@ -74,7 +92,7 @@ def write_pareto(
     if df.empty:
         return pd.DataFrame(), {}
     chosen = parse_objectives(objectives or sweep_objectives(Path(paths[0])))
-    default = shipped_default(Path(paths[0]), point_keys(df))
+    default = shipped_default(Path(paths[0]), point_keys(df), list(df["backend"].unique()))
     points = pareto_points(df, chosen, step_ms, default)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {key: out_dir / name for key, name in FILES.items()}

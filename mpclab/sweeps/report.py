@@ -21,6 +21,7 @@ import pandas as pd
 
 from mpclab import tables
 from mpclab.errors import ConfigError, exit_on_bad_input
+from mpclab.provenance import stamp
 from mpclab.sweeps.figure import plot_arrival_vs_compute
 from mpclab.sweeps.pareto import write_pareto
 from mpclab.sweeps.robustness import plot_robustness, robustness_levels
@@ -94,6 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         shown = [c for c in ("overrides", "runs", *points.attrs["objectives"], "knee",
                              "default") if c in points]
         print(f"\n## Pareto front\n\n{tables.markdown_table(front(points)[shown])}")
+        print(f"\n{stamp()}")
     print(f"\n{len(report.runs)} runs -> " + ", ".join(str(p) for p in report.files.values()))
     return 0
 

@@ -73,9 +73,14 @@ def parse_objectives(names: Sequence[str] | str | None, key: str = "pareto.objec
 
 
 def point_keys(df: pd.DataFrame) -> list[str]:
-    """The parameters that make a point: those the sweep varies, except the seed."""
-    return [p for p in df.attrs.get("params", []) if p in df and p not in NOT_GROUPED
-            and df[p].astype(str).nunique(dropna=False) > 1]
+    """The parameters that make a point: those the sweep varies, except the seed, and the
+    backend where it varies (for a ``controller`` group, whose column holds the summary's
+    controller name, which two choices can share: ``casadi`` for fatrop and IPOPT)."""
+    varied = [p for p in df.attrs.get("params", []) if p in df and p not in NOT_GROUPED
+              and df[p].astype(str).nunique(dropna=False) > 1]
+    if "backend" in df and df["backend"].nunique(dropna=False) > 1:
+        return ["backend", *(p for p in varied if p != "controller")]
+    return varied
 
 
 def pareto_points(
