@@ -121,12 +121,12 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
                    label="excluded (a seed failed to arrive or collided)")
     on = front(points)
     if len(on):
-        ax.errorbar(on[xcol], on[ycol], color="0.35", lw=0.8, capsize=2, zorder=3,
+        ax.errorbar(on[xcol], on[ycol], color="0.35", lw=0.8, capsize=2, zorder=3, alpha=0.4,
                     xerr=_spread(on, xcol), yerr=_spread(on, ycol), fmt="none")
         ax.plot(on[xcol], on[ycol], "-o", color="k", ms=5, zorder=4,
                 label="front (bars: spread over seeds)")
-        for _, r in on.iterrows():
-            ax.annotate(_label(r, keys), (r[xcol], r[ycol]), xytext=(6, 4),
+        for i, (_, r) in enumerate(on.iterrows()):  # alternately above and below
+            ax.annotate(_label(r, keys), (r[xcol], r[ycol]), xytext=(6, 6 if i % 2 else -10),
                         textcoords="offset points", fontsize=7)
     for flag, style in (("knee", dict(s=220, facecolors="none", edgecolors="tab:red",
                                       linewidths=2, label="knee")),
@@ -140,6 +140,10 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
     ax.set_ylabel(LABELS[ParetoObjective(ycol)])
     ax.set_title(f"{title}: {len(on)} of {len(points)} points on the front"
                  + (f", {excluded} excluded" if excluded else ""), fontsize=10)
+    xs = pd.to_numeric(points[xcol], errors="coerce").dropna()
+    if len(xs) and (xs > 0).all() and xs.max() > 20 * xs.min():  # decades apart
+        ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
@@ -157,7 +161,8 @@ def _spread(points: pd.DataFrame, col: str) -> np.ndarray:
 
 def _label(row: pd.Series, keys: Sequence[str]) -> str:
     """A point's parameters, each by the last part of its key (``horizon=10``)."""
-    return ", ".join(f"{k.rsplit('.', 1)[-1]}={override_value(row[k])}" for k in keys)
+    return ", ".join(str(row[k]) if k == "backend" else
+                     f"{k.rsplit('.', 1)[-1]}={override_value(row[k])}" for k in keys)
 
 
 def _title(df: pd.DataFrame) -> str:
