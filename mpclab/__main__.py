@@ -4,13 +4,16 @@
 type, an impossible value, a broken file, an unwritable folder) is one short message on
 stderr and exit code 2, with no traceback unless ``HYDRA_FULL_ERROR=1``; a single run that
 ends ``solver_failed`` or ``error`` exits 1; Ctrl-C, SIGTERM or SIGHUP write the partial run
-record (a sweep: every running job's, and the tables of the jobs done) and exit 130.
+record (a sweep: every running job's, and the tables of the jobs done) and exit 130. Before
+Hydra acts on any of the config, :mod:`mpclab.preflight` checks that it builds nothing but
+registered components.
 """
 
 from __future__ import annotations
 
 import gc
 import logging
+import math
 import os
 import sys
 import traceback
@@ -26,6 +29,7 @@ from mpclab.config import CONF_DIR
 from mpclab.errors import bad_input_message
 from mpclab.help import text as help_text
 from mpclab.origin import RunOrigin
+from mpclab.preflight import check_command_line
 from mpclab.registry import register_all
 from mpclab.sim import RunInterrupted
 from mpclab.status import SOLVE_KEYS, SolveStatus
@@ -97,6 +101,11 @@ def _task(cfg: DictConfig) -> dict:
             raise
     log.info("%s", summary_line(s))
     log.info("run record: %s", out_dir)
+    if s.get("generated_c"):  # controller.codegen=true: the C it ran, kept with its library
+        log.info("generated C (beside its compiled library): %s", ", ".join(s["generated_c"]))
+        if s.get("controller") == "scheduled":
+            log.info("as a folder for a board: python -m mpclab.codegen.export --out DIR "
+                     "<the same overrides>")
     if hc.mode != RunMode.MULTIRUN and s.get("status") in FAILED_RUN_STATUSES:
         raise RunFailed(s["status"], s.get("error"), out_dir)
     return s
@@ -104,12 +113,13 @@ def _task(cfg: DictConfig) -> dict:
 
 def summary_line(s: dict) -> str:
     """The end of a run in words: how it ended, what the solver did, the compute per step,
-    and the ``sim`` world when it is not the ideal loop."""
+    and the ``sim`` world when it is not the ideal loop (its preset, the latency and how many
+    deadlines were missed). Times to 3 significant digits (10 ms and above: whole ms)."""
     status = s.get("status")
     if status == "arrived":
-        head = f"arrived in {s['arrival_time_s']:.1f} s"
+        head = f"arrived in {seconds(s['arrival_time_s'])} s"
     elif status in ("timeout", "collision", "stalled"):
-        head = f"{status} at {s.get('sim_time_s') or 0:.1f} s"
+        head = f"{status} at {seconds(s.get('sim_time_s') or 0)} s"
     else:
         head = f"{status}" + (f" ({s['error']})" if s.get("error") else "")
     calls = sum(int(s.get(key) or 0) for key in SOLVE_KEYS.values())
@@ -121,16 +131,32 @@ def summary_line(s: dict) -> str:
     if s.get("solver_failures"):
         parts.append(f"{s['solver_failures']} fell back")
     if s.get("compute_median_ms") is not None:
-        parts.append(f"{s['compute_median_ms']:.2f} ms per step (p95 "
-                     f"{s.get('compute_p95_ms') or float('nan'):.2f} ms)")
-    if s.get("sim") not in (None, "nominal"):
+        p95 = s.get("compute_p95_ms")
+        parts.append(f"{milliseconds(s['compute_median_ms'])} ms per step (p95 "
+                     f"{'?' if p95 is None else milliseconds(p95)} ms)")
+    delayed = s.get("sim_latency") not in (None, "none")
+    if s.get("sim") not in (None, "nominal") or delayed:
         world = f"sim {s['sim']}"
         if s.get("latency_median_ms") is not None:
-            world += f": latency {s['latency_median_ms']:.1f} ms median"
-        if s.get("deadline_misses"):
-            world += f", {s['deadline_misses']} deadline misses"
+            world += (f": latency {milliseconds(s['latency_median_ms'])} ms median, "
+                      f"{int(s.get('deadline_misses') or 0)} deadline misses")
         parts.append(world)
     return " | ".join(parts)
+
+
+def milliseconds(v: float) -> str:
+    """``v`` to 3 significant digits without an exponent (10 and above: whole numbers)."""
+    v = float(f"{v:.3g}")  # 9.996 -> 10.0: rounded before the digits are chosen
+    if not math.isfinite(v) or v == 0:
+        return f"{v:g}"
+    if abs(v) >= 10:
+        return f"{v:.0f}"
+    return f"{v:.{2 - math.floor(math.log10(abs(v)))}f}"
+
+
+def seconds(v: float) -> str:
+    """A simulated time to the hundredth of a second, trailing zeros dropped."""
+    return f"{v:.2f}".rstrip("0").rstrip(".")
 
 
 def cli(argv: Sequence[str] | None = None) -> int:
@@ -156,6 +182,7 @@ def cli(argv: Sequence[str] | None = None) -> int:
     os.environ[_FULL_ERROR] = "1"
     error: Exception | None = None
     try:
+        check_command_line(args)  # before Hydra acts on the config (logging, callbacks)
         with signals_interrupt():  # SIGTERM, SIGHUP: as Ctrl-C, the steps so far recorded
             main()
     except _TaskError as wrapped:

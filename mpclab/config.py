@@ -41,6 +41,8 @@ class Config:
     sim: Any = MISSING
     recorder: Any = MISSING
     safety_filter: Any = None  # a filter of the applied input: +safety_filter=cbf
+    # modules of your own components, imported by name (docs/extending.md): [my_terms]
+    plugins: list[str] = field(default_factory=list)
 
 
 ConfigStore.instance().store(name="config_schema", node=Config)

@@ -32,12 +32,15 @@ class ConfigError(ValueError):
 def unknown(kind: str, given: str, valid: Iterable[str], where: str = "") -> ConfigError:
     """An error for ``given`` not being one of ``valid``, with a did-you-mean hint."""
     valid = sorted(valid)
-    close = difflib.get_close_matches(given, valid, n=1)
-    hint = f" Did you mean {close[0]!r}?" if close else ""
     at = f" in {where}" if where else ""
-    return ConfigError(
-        f"unknown {kind} {given!r}{at}.{hint} Valid {kind}s: {', '.join(valid) or '(none)'}"
-    )
+    return ConfigError(f"unknown {kind} {given!r}{at}.{did_you_mean(given, valid)} "
+                       f"Valid {kind}s: {', '.join(valid) or '(none)'}")
+
+
+def did_you_mean(given: str, valid: Iterable[str]) -> str:
+    """`` Did you mean 'x'?`` for the closest of ``valid`` to ``given``; "" if none is."""
+    close = difflib.get_close_matches(given, list(valid), n=1)
+    return f" Did you mean {close[0]!r}?" if close else ""
 
 
 def check_keys(given: Mapping[str, Any], valid: Iterable[str], where: str) -> None:

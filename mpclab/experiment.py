@@ -18,6 +18,7 @@ from mpclab.origin import RunOrigin, where_set
 from mpclab.progress import RunProgress
 from mpclab.sim import Run, RunInterrupted, RunResult, simulate
 from mpclab.status import PROBLEM_KEY
+from mpclab.trust import check_config
 from mpclab.warm import ComponentCache
 
 
@@ -63,8 +64,10 @@ def build_run(
 ) -> Run:
     """Instantiate plant, objective, scenario, supervisor, sim world, controller, recorder.
 
-    The controller comes after the others but the recorder: it is the expensive one to
-    build (a CasADi NLP compiles), so bad input anywhere else is refused before it. With a
+    Every ``_target_`` in ``cfg`` is checked first (:func:`mpclab.trust.check_config`: only
+    registered components are built). The controller comes after the others but the
+    recorder: it is the expensive one to build (a CasADi NLP compiles), so bad input
+    anywhere else is refused before it. With a
     ``cache``, plant, objective and controller are reused from an earlier run of the same
     structure (:mod:`mpclab.warm`). With the run's ``origin`` (Hydra's choices and command
     line), a bad-input message also says which file or override set the key it names.
@@ -79,6 +82,7 @@ def build_run(
 
 
 def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | None) -> Run:
+    check_config(cfg)  # the whole tree, before anything in it is built
     if cfg.seed < 0:
         raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)
@@ -114,7 +118,9 @@ def run_experiment(
 
     ``summary["timing"]`` holds the wall seconds of building, the closed loop and writing.
     Ctrl-C during the loop writes the record of the steps so far (status ``interrupted``)
-    and raises :class:`~mpclab.sim.RunInterrupted` (a ``KeyboardInterrupt``) again.
+    and raises :class:`~mpclab.sim.RunInterrupted` (a ``KeyboardInterrupt``) again. The
+    record is written before the recording is closed and the figures drawn; a folder that
+    cannot take one of them (full, read-only) is an ``OSError`` naming it.
     """
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
@@ -126,8 +132,10 @@ def run_experiment(
         result = simulate(run, progress=progress)
     except RunInterrupted as exc:
         result, interrupted = exc.result, exc
-    finally:
+    except BaseException:
         run.recorder.close()
+        raise
+    finally:
         if progress is not None:
             progress.done()
     t2 = time.perf_counter()
@@ -145,13 +153,21 @@ def run_experiment(
         "versions": record.versions(),
     }
     result.summary["timing"] = {"build_s": t1 - t0, "simulate_s": t2 - t1}
-    record.write(out_dir, result.steps, result.horizons, result.summary)
+    # the record first: a full disk costs the recording or the figures, not the record
+    try:
+        record.write(out_dir, result.steps, result.horizons, result.summary)
+    except BaseException:
+        run.recorder.close()
+        raise
+    with record.writing(out_dir, "the recording (the run record is written)"):
+        run.recorder.close()
     if interrupted is not None:
         raise interrupted
     if cfg.figures.enabled:
         from mpclab.recording.figures import plot_run
 
-        plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
+        with record.writing(out_dir, "the figures (the run record is written)"):
+            plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
     result.summary["timing"]["write_s"] = time.perf_counter() - t2
     return result
 

@@ -3,7 +3,8 @@
 A family (terms, constraints) names, per backend, the method that expresses one of its
 members for that backend (:attr:`Expressible.backend_methods`); a member can be expressed
 by the backends whose method its class overrides. A backend asks :meth:`Expressible.require`,
-which refuses with a message naming the member and the backends that accept it.
+which refuses with a message naming the member and the backends that accept it. Every
+subclass is registered (:func:`mpclab.registry.register_target`): a config may name it.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from collections.abc import Mapping
 from typing import ClassVar
 
 from mpclab.errors import ConfigError
+from mpclab.registry import register_target
 
 
 class Expressible:
@@ -23,6 +25,10 @@ class Expressible:
     backend_methods: ClassVar[Mapping[str, str]] = {}
     #: what messages call a member ("objective term", "constraint")
     kind: ClassVar[str] = ""
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        register_target(cls)  # a term or constraint class is one a config may build
 
     @classmethod
     def backends(cls) -> list[str]:

@@ -17,12 +17,11 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from hydra.utils import get_class
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab.experiment import CONF_DIR, compose
 from mpclab.objectives.base import Term
-from mpclab.registry import register_all
+from mpclab.registry import TARGETS, register_all
 
 DEFAULT_EXPERIMENT = "zumo_bug2"
 #: config groups a user chooses from, in the order a run is assembled
@@ -123,9 +122,8 @@ def text(args: Sequence[str] = ()) -> str:
 
 def _controller_options(cfg: DictConfig) -> list[str]:
     """The composed controller's options with their meaning (``controller.KEY=...``)."""
-    try:
-        cls = get_class(str(cfg.controller._target_))
-    except Exception:  # noqa: BLE001  (a target that does not import: nothing to list)
+    cls = TARGETS.get(str(OmegaConf.select(cfg, "controller._target_")))
+    if not isinstance(cls, type):  # not a registered class: nothing to list
         return []
     injected = {"plant", "objective", "scenario"}
     rows = [(n, m) for n, m in options(cls) if not injected & {p.strip() for p in n.split(",")}]

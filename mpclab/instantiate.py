@@ -1,28 +1,31 @@
 """The one ``instantiate`` helper: config node -> object, with options checked first.
 
 Hydra's ``instantiate`` reports an unknown keyword only as a ``TypeError`` from deep inside
-the call. :func:`build` walks the node first and, for every ``_target_`` in it, compares the
-given keys with the target's signature, so a typo names the key, its path and the valid ones.
+the call. :func:`build` walks the node first and, for every ``_target_`` in it, checks that
+the target is registered (:func:`mpclab.registry.require_registered`: a config builds mpclab's
+components and nothing else) and compares the given keys with the target's signature, so a
+typo names the key, its path and the valid ones.
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
-import pydoc
 from typing import Any
 
 from hydra.errors import InstantiationException
-from hydra.utils import get_object, instantiate
+from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from mpclab.errors import ConfigError, bad_input_message, check_keys
+from mpclab.registry import require_registered
 
 _HYDRA_KEYS = {"_target_", "_convert_", "_recursive_", "_partial_", "_args_"}
 
 
 def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
-    """Raise :class:`ConfigError` if any ``_target_`` below ``node`` gets unknown options."""
+    """Raise :class:`ConfigError` if any ``_target_`` below ``node`` is not registered or
+    gets unknown options."""
     if isinstance(node, DictConfig):
         if "_target_" in node.keys():  # not ``in node``: a struct node raises inside for a
             _check_one(node, path, deps)  # missing key, and most nodes have no target
@@ -34,14 +37,8 @@ def check_targets(node: Any, path: str, deps: tuple[str, ...] = ()) -> None:
 
 
 def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
-    target = str(node["_target_"])
-    try:
-        names, any_keyword = _options_of(target)
-    except pydoc.ErrorDuringImport as exc:  # the module is there but fails to import
-        raise ConfigError(f"{path}._target_: cannot import {target!r} ({exc.value})") from exc
-    except LookupError:
-        raise ConfigError(f"{path}._target_: cannot import {target!r}: no such module, class "
-                          "or function") from None
+    target = node["_target_"]
+    names, any_keyword = _options_of(require_registered(target, path))
     if any_keyword:
         return
     valid = [n for n in names if n not in deps]
@@ -50,12 +47,9 @@ def _check_one(node: DictConfig, path: str, deps: tuple[str, ...]) -> None:
 
 
 @functools.lru_cache(maxsize=512)
-def _options_of(target: str) -> tuple[tuple[str, ...], bool]:
-    """The parameter names of ``target``'s signature and whether it takes ``**kwargs``
+def _options_of(obj: Any) -> tuple[tuple[str, ...], bool]:
+    """The parameter names of ``obj``'s signature and whether it takes ``**kwargs``
     (found once per process: a sweep builds the same targets job after job)."""
-    obj = pydoc.locate(target)  # None when not found (Hydra's get_object logs it)
-    if obj is None:
-        raise LookupError(target)  # not cached: a failed lookup is tried again
     params = inspect.signature(obj).parameters.values()
     return tuple(p.name for p in params), any(p.kind is p.VAR_KEYWORD for p in params)
 
@@ -70,8 +64,8 @@ def build(node: DictConfig, path: str, **deps: Any) -> Any:
     if node is None or (isinstance(node, DictConfig) and "_target_" not in node):
         raise ConfigError(f"{path}: no _target_ to instantiate; got {OmegaConf.to_yaml(node)!r}")
     check_targets(node, path, tuple(deps))
-    target = get_object(node["_target_"])
-    params, _ = _options_of(str(node["_target_"]))
+    target = require_registered(node["_target_"], path)
+    params, _ = _options_of(target)
     deps = {k: v for k, v in deps.items() if k in params}
     try:
         if _is_flat(node):

@@ -7,9 +7,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
+from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -64,7 +66,7 @@ def write(
 ) -> None:
     """Write the three files of a run record into ``out_dir`` (created if needed)."""
     out_dir = Path(out_dir)
-    try:
+    with writing(out_dir, "the run record"):
         out_dir.mkdir(parents=True, exist_ok=True)
         for frame, name in ((steps, STEPS), (horizons, HORIZONS)):
             # what ``frame.to_parquet(path, index=False)`` writes, without pandas' wrapper
@@ -72,8 +74,17 @@ def write(
             pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), out_dir / name)
         # summary last: its presence marks a complete record
         write_summary(out_dir, summary)
-    except OSError as exc:  # read-only, full, not a folder: name the folder, not a C++ frame
-        raise OSError(exc.errno, f"cannot write the run record ({exc.strerror or exc})",
+
+
+@contextlib.contextmanager
+def writing(out_dir: Path, what: str) -> Iterator[None]:
+    """An error while writing ``what`` into ``out_dir`` (read-only, full, not a folder)
+    raised again as one that names the folder, not a C++ frame or a file descriptor: the
+    command line's one message (``No space left on device``, ``Read-only file system``)."""
+    try:
+        yield
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write {what} ({exc.strerror or exc})",
                       str(out_dir)) from exc
 
 

@@ -12,6 +12,12 @@ defaults and lists the schema first in its defaults list::
 
 so a typo'd key or a wrong type fails while Hydra composes, naming the key.
 :func:`register_all` imports every component module, which runs their registrations.
+
+Registering is also what lets a config build a class: :data:`TARGETS` holds every class or
+function a ``_target_`` may name (the components, objective terms and constraints by
+subclassing, anything else by :func:`register_target`), and :func:`require_registered`
+refuses any other. Modules of the user's own components are imported by name from the
+config's ``plugins`` list (:func:`import_plugins`), which runs their registrations.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import enum
 import importlib
 import inspect
 import pkgutil
+import re
 import sys
 import types
 import typing
@@ -32,9 +39,12 @@ from typing import Any, Optional, Union
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, OmegaConf
 
+from mpclab.errors import ConfigError, did_you_mean
+
 #: packages whose modules register schemas when imported
 COMPONENT_PACKAGES = (
     "mpclab.plants",
+    "mpclab.constraints",
     "mpclab.controllers",
     "mpclab.objectives",
     "mpclab.supervisors",
@@ -44,6 +54,64 @@ COMPONENT_PACKAGES = (
 
 #: group -> name -> component class (for the names written into run records)
 COMPONENTS: dict[str, dict[str, type]] = {}
+
+#: import path -> the class or function a config's ``_target_`` may name: nothing else is built
+TARGETS: dict[str, Any] = {}
+
+
+def register_target(obj: Any) -> Any:
+    """Decorator: let a config build ``obj`` (name it as ``_target_``). Components get this
+    from :func:`component`, objective terms and constraints from subclassing their base."""
+    TARGETS[target(obj)] = obj
+    return obj
+
+
+def require_registered(name: Any, path: str) -> Any:
+    """The registered class or function ``name`` (a ``_target_`` at config key ``path``);
+    :class:`ConfigError` naming the key and the target for anything else."""
+    found = TARGETS.get(name) if isinstance(name, str) else None
+    if found is None:
+        raise ConfigError(
+            f"{path}._target_: {name!r} is not a registered mpclab component, and a config "
+            "builds nothing else. A component of your own is registered by its decorator "
+            "and its module listed under plugins (docs/extending.md)."
+            + did_you_mean(str(name), TARGETS))
+    return found
+
+
+_MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
+
+
+def check_module_name(name: Any, where: str) -> None:
+    """:class:`ConfigError` naming config key ``where`` unless ``name`` is a module name a
+    config may have imported: not one of Python's standard library (they register nothing,
+    and some act when imported: ``antigravity`` opens a browser)."""
+    if not isinstance(name, str) or not _MODULE.fullmatch(name):
+        raise ConfigError(f"{where}: expected a module name (my_terms, my_pkg.plants), "
+                          f"got {name!r}")
+    if name.split(".")[0] in sys.stdlib_module_names:
+        raise ConfigError(f"{where}: {name!r} is a module of Python's standard library, not "
+                          "one of your components")
+
+
+def import_plugins(names: Any, key: str = "plugins") -> None:
+    """Import the modules of the user's own components, listed by name at config ``key``
+    (``plugins: [my_terms]``), which registers them. A module is looked up on Python's path
+    (the working folder of ``python -m mpclab``, ``PYTHONPATH``); the standard library's are
+    refused (:func:`check_module_name`)."""
+    for i, name in enumerate(names or ()):
+        where = f"{key}[{i}]"
+        check_module_name(name, where)
+        if name in sys.modules:
+            continue
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name is None or not (name == exc.name or name.startswith(exc.name + ".")):
+                raise  # the module is there; something it imports is not: its traceback
+            raise ConfigError(f"{where}: no module {name!r} on Python's path (run from the "
+                              f"folder that holds it, or add that folder to PYTHONPATH)"
+                              ) from None
 
 
 def register_schema(
@@ -65,6 +133,7 @@ def register_schema(
     ConfigStore.instance().store(group=f"schema/{group}", name=name, node=node)
     if component is not None:
         COMPONENTS.setdefault(group, {})[name] = component
+        register_target(component)
 
 
 def component(
@@ -168,8 +237,8 @@ def _copy(value: Any) -> Any:
     return value
 
 
-def target(cls: type) -> str:
-    """The import path Hydra instantiates ``cls`` from."""
+def target(cls: Any) -> str:
+    """The import path Hydra instantiates ``cls`` (a class or function) from."""
     return f"{cls.__module__}.{cls.__qualname__}"
 
 

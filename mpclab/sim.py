@@ -153,7 +153,8 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
 
 def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None) -> StepContext:
     """What the controller is given at ``(t, x)``: sensor readings, the supervisor's choice
-    of objective terms (the supervisor's state advances) and the target over the horizon.
+    of objective terms (its state advances) and the target over the horizon (the
+    supervisor's, if it sets one this step, else the scenario's).
 
     ``x`` is the true state the sensor sees the world from; ``measured`` (default ``x``) the
     state the robot believes it is in: detected points are placed from it, and the
@@ -164,8 +165,11 @@ def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None)
     perturb = None if run.world is None else run.world.perturb_ranges
     detections, ranges = scen.sense(x, believed=measured, perturb=perturb)
     mode, active = run.supervisor.update(t, measured, detections)
+    target = run.supervisor.target(t, ctrl.horizon, ctrl.dt)
     return StepContext(
-        goal=scen.goal, target=scen.target(t, ctrl.horizon, ctrl.dt), detections=detections,
+        goal=scen.goal,
+        target=scen.target(t, ctrl.horizon, ctrl.dt) if target is None else target,
+        detections=detections,
         ranges=ranges, active=active, mode=mode, follow=run.supervisor.follow,
     )
 

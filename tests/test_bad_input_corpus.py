@@ -31,8 +31,9 @@ from mpclab.__main__ import EXIT_BAD_INPUT, cli, report
 from mpclab.errors import ConfigError
 from mpclab.experiment import CONF_DIR, build_run, compose
 
-CAR, CASADI_CAR, ZUMO, BUG2 = (f"+experiment={n}" for n in
-                               ("car_cvxpy", "car_casadi", "zumo_potential", "zumo_bug2"))
+CAR, CASADI_CAR, ZUMO, BUG2, BUG2_STUDY = (
+    f"+experiment={n}" for n in
+    ("car_cvxpy", "car_casadi", "zumo_potential", "zumo_bug2", "zumo_bug2_study"))
 BICYCLE, NN = "+experiment=bicycle_scheduled", "+experiment=zumo_nn"
 WEIGHTS = ROOT / "experiments" / "zumo_nn" / "weights.npz"
 
@@ -80,11 +81,11 @@ CASES: list[tuple[list[str], list[str]]] = [
     ([BUG2, "objective.terms.J1.L1=0"], ["L1", "0"]),
     ([BUG2, "objective.terms.J3.C2=nan"], ["C2", "nan"]),
     ([BUG2, "objective.terms.J3.L2=-0.04"], ["L2", "-0.04"]),
-    ([BUG2, "objective.terms.J4.C3=inf"], ["C3", "inf"]),
-    ([BUG2, "objective.terms.J4.L3=0"], ["L3", "0"]),
-    ([BUG2, "objective.terms.J5f.C4=nan"], ["C4", "nan"]),
-    ([BUG2, "objective.terms.J5f.L4=-1"], ["L4", "-1"]),
-    ([BUG2, "objective.terms.J5f.angle_deg=inf"], ["angle_deg", "inf"]),
+    ([BUG2_STUDY, "objective.terms.J4.C3=inf"], ["C3", "inf"]),
+    ([BUG2_STUDY, "objective.terms.J4.L3=0"], ["L3", "0"]),
+    ([BUG2_STUDY, "objective.terms.J5f.C4=nan"], ["C4", "nan"]),
+    ([BUG2_STUDY, "objective.terms.J5f.L4=-1"], ["L4", "-1"]),
+    ([BUG2_STUDY, "objective.terms.J5f.angle_deg=inf"], ["angle_deg", "inf"]),
     ([BUG2, "objective.terms.dU.weights.u1=nan"], ["weights.u1", "nan"]),
     ([BUG2, "objective.terms.dU.weights.u2=-1"], ["weights.u2", "-1"]),
     ([BUG2, "objective.terms.J2.input_weights.u1=nan"], ["input_weights.u1", "nan"]),
@@ -148,7 +149,9 @@ CASES: list[tuple[list[str], list[str]]] = [
     ([BICYCLE, "sim=realistic", "sim.noise.range_std=-1"], ["sim.noise.range_std", "-1"]),
     # ---- the supervisor's modes against the objective's terms
     ([BUG2, "supervisor.modes.go_to_goal=[J1,J2,J9]"], ["supervisor.modes.go_to_goal", "J9"]),
-    ([BUG2, "supervisor.modes.wall_follow=[J3,J4,dU]"], ["J5f", "supervisor.modes"]),
+    ([BUG2_STUDY, "supervisor.modes.wall_follow=[J3,J4,dU]"], ["J5f", "supervisor.modes"]),
+    ([BUG2, "supervisor.path_speed=-1"], ["supervisor.path_speed", "-1"]),
+    ([BUG2, "supervisor.side=up"], ["supervisor.side", "up", "right", "left"]),
     ([BUG2, "+objective.terms.J5={_target_: mpclab.objectives.potential.LeftHandPull}"],
      ["'J5'", "supervisor.modes"]),
     ([BUG2, "supervisor.block_range=0"], ["supervisor.block_range", "0"]),

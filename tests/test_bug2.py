@@ -7,6 +7,7 @@ import pytest
 
 from mpclab.errors import ConfigError
 from mpclab.plants.zumo import Zumo
+from mpclab.supervisors.boundary import ObstacleMemory, Side, streamline
 from mpclab.supervisors.bug2 import Bug2
 
 GO = frozenset({"J1", "J2", "J3", "J4"})
@@ -111,17 +112,19 @@ def test_goal_sight_range_must_be_nonnegative() -> None:
         Bug2(Zumo(), goal_sight_range=-0.1)
 
 
-def test_runs_join_points_nearer_than_the_link() -> None:
-    from mpclab.supervisors.bug2 import runs
-
+def test_memory_joins_points_nearer_than_the_link_and_keeps_them() -> None:
+    mem = ObstacleMemory(0.15)
     wall = np.c_[np.linspace(0.0, 0.3, 7), np.zeros(7)]          # 5 cm apart
     disc = np.array([[0.8, 0.0], [0.82, 0.03]])
-    labels = runs(np.vstack([wall, disc]), 0.15)
-    assert len(set(labels[:7])) == 1 and len(set(labels[7:])) == 1
-    assert labels[0] != labels[7]
-    assert runs(np.zeros((0, 2)), 0.15).shape == (0,)
-    # a gap narrower than the link (the robot cannot pass): one boundary
-    assert len(set(runs(np.array([[0.0, 0.0], [0.12, 0.0]]), 0.15))) == 1
+    ids = mem.add(np.vstack([wall, disc]))
+    assert mem.obstacle(ids[0])[ids[:7]].all() and not mem.obstacle(ids[0])[ids[7:]].any()
+    assert mem.obstacle(ids[7])[ids[7:]].all()
+    assert mem.add(np.zeros((0, 2))).shape == (0,)
+    # the same cell again is the same point; a point out of view stays remembered
+    assert mem.add(wall[:1] + 0.001)[0] == ids[0] and len(mem.points) == 9
+    # a gap narrower than the link (the robot cannot pass) joins the two obstacles
+    bridge = mem.add(np.array([[0.42, 0.0], [0.55, 0.0], [0.68, 0.0]]))
+    assert mem.find(int(ids[0])) == mem.find(int(ids[7])) == mem.find(int(bridge[0]))
 
 
 def test_the_hit_boundary_is_followed_and_handed_on_as_a_mask() -> None:
@@ -138,3 +141,32 @@ def test_the_hit_boundary_is_followed_and_handed_on_as_a_mask() -> None:
     # back to the goal: nothing is followed
     sup.update(4.0, np.array([0.42, 0.5, 0]), NONE)
     assert sup.mode == "go_to_goal" and sup.follow is None
+
+
+def test_the_path_keeps_the_clearance_along_a_wall_and_rounds_its_end() -> None:
+    wall = np.c_[np.linspace(-1.0, 0.0, 201), np.zeros(201)]     # ends at the origin
+    path = streamline(np.array([-0.6, 0.12]), wall, 0.08, Side.right, 0.01, 120)
+    dist = np.min(np.linalg.norm(path[:, None, :2] - wall[None], axis=2), axis=1)
+    # it closes in on the clearance, then keeps it, with the wall on its right (+x first)
+    assert np.all(np.abs(dist[30:55] - 0.08) < 0.003) and np.all(np.abs(dist[30:] - 0.08) < 0.01)
+    assert path[10, 0] > path[0, 0] and abs(path[10, 2]) < 0.5
+    # round the end on a circle of that radius, and back along the wall's other side
+    assert path[-1, 1] < -0.07 and path[-1, 0] < -0.05 and abs(abs(path[-1, 2]) - np.pi) < 0.3
+    left = streamline(np.array([-0.6, 0.08]), wall, 0.08, Side.left, 0.01, 10)
+    assert left[-1, 0] < -0.65                                     # the other way round
+
+
+def test_the_supervisor_hands_over_the_path_only_while_following() -> None:
+    sup = Bug2(Zumo(), modes={"go_to_goal": ["J1"], "wall_follow": ["Jp"]},
+               path_speed=0.15, clearance=0.08)
+    sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]))
+    assert sup.update(0.0, np.array([0.4, 0.9, 0.0]), NONE)[0] == "go_to_goal"
+    assert sup.target(0.0, 10, 0.2) is None
+    wall = np.c_[np.linspace(0.0, 1.0, 21), np.full(21, 0.75)]    # across the way
+    assert sup.update(0.2, np.array([0.4, 0.85, 0.0]), wall)[0] == "wall_follow"
+    ref = sup.target(0.2, 10, 0.2)
+    assert ref.shape == (11, 3) and np.allclose(ref[0, :2], [0.4, 0.85])
+    step = np.linalg.norm(np.diff(ref[:, :2], axis=0), axis=1)
+    assert np.all(np.abs(step - 0.03) < 0.005)                     # 0.15 m/s for 0.2 s
+    # the wall (below) on the right: the path runs in +x, toward the clearance
+    assert ref[-1, 0] > 0.6 and abs(ref[-1, 1] - 0.83) < 0.01

@@ -8,6 +8,7 @@ import pytest
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
+from mpclab.controllers.casadi_compile import LONG_BUILD_S, announce_long_build
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction, ObstacleRepulsion
@@ -155,3 +156,35 @@ def test_new_options_are_checked() -> None:
         _zumo({"J1": GoalAttraction()}, sqp_iterations=0)
     with pytest.raises(ConfigError, match="hard, soft, cbf"):
         ObstacleDistance(mode="stiff")
+
+
+class _Started(Exception):
+    """Raised where the long build would start."""
+
+
+def test_a_horizon_that_builds_for_minutes_says_so_before_it_starts(monkeypatch, capsys
+                                                                    ) -> None:
+    def start(self, names, terminal, extra):
+        raise _Started(capsys.readouterr().err)  # what was said when the build began
+
+    monkeypatch.setattr(CasadiMPC, "_make_nlp", start)
+    plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
+    with pytest.raises(_Started) as said:
+        CasadiMPC(plant, Objective(_j1_j2_j4()), horizon=5000, dt=0.2, jit=True)
+    text = str(said.value)
+    assert "mpclab: controller.horizon=5000: an NLP of about" in text
+    assert "writing and compiling its C" in text and "unless it was compiled before" in text
+    with pytest.raises(_Started) as said:  # a usual horizon: nothing to say
+        CasadiMPC(plant, Objective(_j1_j2_j4()), horizon=30, dt=0.2, jit=True)
+    assert str(said.value) == ""
+
+
+def test_the_build_estimate_grows_with_the_horizon() -> None:
+    """Operations grow linearly with the horizon; the compile faster than the C."""
+    size = {1: 400, 2: 700}.__getitem__  # an NLP of 300 operations a step
+    quick = announce_long_build(size, 30, True)
+    long = announce_long_build(size, 3000, True)
+    assert 0 < quick < LONG_BUILD_S < long
+    assert long / quick > 100  # a hundred times the horizon, more than that the time
+    assert announce_long_build(size, 3000, False) < long
+    assert announce_long_build(size, 10, True) == 0  # a short horizon: not even estimated

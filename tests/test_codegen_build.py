@@ -66,3 +66,45 @@ def test_a_compile_announces_itself_before_it_starts(tmp_path, monkeypatch, caps
     assert "compiled tiny in" in capsys.readouterr().err
     build.compile_shared(SOURCE, "tiny", ["-O1"])  # cached: nothing to say
     assert capsys.readouterr().err == "" and len(said_before) == 1
+
+
+@pytest.mark.skipif(build.find_compiler() is None, reason="needs a C compiler")
+def test_the_generated_c_is_kept_beside_its_library(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path))
+    lib = build.compile_shared(SOURCE, "kept", ["-O0"], header="double twice(double x);\n",
+                               keep_source=True)
+    c, h = build.kept_source(lib)
+    assert (c.parent, c.suffix, h.suffix) == (lib.parent, ".c", ".h")
+    assert c.read_text() == SOURCE and "twice" in h.read_text()
+    c.unlink()  # a library compiled before sources were kept: written on the next use
+    assert build.compile_shared(SOURCE, "kept", ["-O0"], keep_source=True) == lib
+    assert c.read_text() == SOURCE
+    plain = build.compile_shared(SOURCE, "plain", ["-O0"])
+    assert build.kept_source(plain) == []  # only when asked (a JIT'ed NLP's C is large)
+
+
+@pytest.mark.skipif(build.find_compiler() is None, reason="needs a C compiler")
+def test_codegen_true_says_where_the_generated_c_is(tmp_path, monkeypatch, capsys) -> None:
+    from mpclab.__main__ import cli
+
+    monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path / "cache"))
+    assert cli(["+experiment=bicycle_scheduled", "+ci=smoke", "controller.codegen=true",
+                f"hydra.run.dir={tmp_path / 'run'}"]) == 0
+    out = capsys.readouterr()
+    said = out.out + out.err
+    line = next(ln for ln in said.splitlines() if "generated C" in ln)
+    files = [Path(p.strip(",")) for p in line.split() if p.startswith(str(tmp_path))]
+    assert sorted(p.suffix for p in files) == [".c", ".h"], line
+    assert all(p.is_file() and p.with_suffix(".so").is_file() for p in files)
+    assert "mpc_step" in files[0].read_text() and "python -m mpclab.codegen.export" in said
+
+
+def test_the_board_export_refuses_a_controller_without_board_c(tmp_path, capsys) -> None:
+    from mpclab.codegen import export
+
+    with pytest.raises(SystemExit) as stop:
+        export.main(["--out", str(tmp_path / "board"), "+experiment=car_cvxpy"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "has no C for a board" in err and "controller=scheduled" in err
+    assert not (tmp_path / "board").exists()

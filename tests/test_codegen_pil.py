@@ -1,10 +1,14 @@
 """PIL: the scheduled controller's generated C on an emulated Cortex-M4F (QEMU netduinoplus2).
 
 Needs Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (``.ci/run``
-installs them); skipped, naming what is missing, without them. About 5 s.
+installs them); skipped, naming what is missing, without them. About 5 s. The board folder of
+``python -m mpclab.codegen.export`` is built with its own Makefile and run the same way.
 """
 
 from __future__ import annotations
+
+import shutil
+import subprocess
 
 import numpy as np
 import pandas as pd
@@ -75,3 +79,34 @@ def test_pil_on_the_emulated_board_matches_the_desktop_c(recorded, precision, tm
     assert check.fits_f401re
     worst = pil.step_time_s(max(check.instructions), cpi=pil.CPI_RANGE[-1])
     assert 0 < worst < 0.020
+
+
+def test_the_exported_board_folder_builds_and_prints_what_the_desktop_c_does(tmp_path) -> None:
+    """``python -m mpclab.codegen.export``: the folder builds with its own Makefile
+    (arm-none-eabi-gcc) and its example, run on the emulated board, prints the inputs the
+    desktop build of the same C gave (``expected_output.txt``)."""
+    if shutil.which("make") is None:
+        pytest.skip("the board folder's Makefile needs make")
+    from mpclab.codegen import export
+
+    board = tmp_path / "board"
+    assert export.main(["--out", str(board), "--steps", "4", "+experiment=bicycle_scheduled",
+                        "scenario=regular_circle_turn"]) == 0
+    assert {p.name for p in board.iterdir()} >= {"mpc_controller.c", "mpc_controller.h",
+                                                  "main.c", "Makefile", "README.md"}
+    subprocess.run(["make", "-C", str(board)], check=True, capture_output=True, text=True)
+    assert (board / "controller.elf").is_file()
+    proc = subprocess.run(["make", "-s", "-C", str(board), "run"], check=True,
+                          capture_output=True, text=True, timeout=120,
+                          stdin=subprocess.DEVNULL)
+    printed = [ln for ln in (proc.stdout + proc.stderr).splitlines()
+               if ln.startswith("step:") or ln == "done"]
+    expected = (board / "expected_output.txt").read_text().splitlines()
+    assert len(printed) == len(expected) == 5 and printed[-1] == "done"
+    for got, want in zip(printed[:-1], expected[:-1], strict=True):
+        head, _, u = got.partition(", u ")
+        want_head, _, want_u = want.partition(", u ")
+        assert head == want_head  # return code, operating point, iterations
+        # the same double arithmetic; the two printers may round the 9th decimal apart
+        np.testing.assert_allclose(np.array(u.split(), dtype=float),
+                                   np.array(want_u.split(), dtype=float), atol=2e-9)

@@ -3,7 +3,7 @@
 The guide includes each example file verbatim between ``<!-- include: PATH -->`` and
 ``<!-- end include -->``; every include must equal the file, and every ``mpclab/`` or
 ``conf/`` path the guide names must exist. The examples (a plant, an objective term, a
-backend) then run closed loop as the guide says they do.
+backend, a term of one's own outside mpclab) then run closed loop as the guide says they do.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
+from mpclab import record
+from mpclab.__main__ import EXIT_BAD_INPUT, cli
 from mpclab.controllers.base import StepContext
 from mpclab.errors import ConfigError
 from mpclab.experiment import build_run, compose
@@ -112,3 +114,20 @@ def test_uno_backend_matches_ipopt(preset: str) -> None:
     cols = ["px", "py", "theta", "v"]
     assert np.allclose(uno.steps[cols].to_numpy(), ipopt.steps[cols].to_numpy(), atol=1e-4)
 
+
+def test_a_term_of_ones_own_outside_mpclab_caps_the_speed(tmp_path, monkeypatch, capsys
+                                                           ) -> None:
+    """Section 5: ``plugins: [speed_cap]`` registers the term; without it, one message."""
+    folder = ROOT / "docs" / "plugin_example"
+    monkeypatch.syspath_prepend(str(folder))  # python -m mpclab run from that folder
+    monkeypatch.chdir(tmp_path)
+    base = ["-cd", str(folder), "+experiment=unicycle_capped", "recorder=none",
+            "figures.enabled=false"]
+    assert cli([*base, "plugins=[]", f"hydra.run.dir={tmp_path}/refused"]) == EXIT_BAD_INPUT
+    assert ("objective.terms.cap._target_: 'speed_cap.SpeedCap' is not a registered mpclab "
+            "component") in capsys.readouterr().err
+    assert cli([*base, f"hydra.run.dir={tmp_path}/run"]) == 0
+    s = record.read_summary(tmp_path / "run")
+    top = record.read_steps(tmp_path / "run")["v"].max()
+    assert s["status"] == "arrived" and s["arrival_time_s"] == pytest.approx(8.0, abs=0.15)
+    assert top == pytest.approx(1.2, abs=0.05)  # section 4's run: 2.0 m/s

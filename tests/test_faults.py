@@ -1,5 +1,5 @@
 """Faults: injected solver failures in every backend, a controller that never solves, Ctrl-C,
-an output folder that cannot be written, and the long-run notice."""
+an output folder that cannot be written or fills up, and the long-run notice."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from matplotlib.figure import Figure
 
 from conftest import compose_cfg
 from mpclab import progress as progress_module
@@ -23,6 +24,7 @@ from mpclab.controllers.nn import NNController
 from mpclab.controllers.scheduled import ScheduledMPC
 from mpclab.experiment import run_experiment
 from mpclab.progress import RunProgress
+from mpclab.recording.rerun import RerunRecorder
 from mpclab.sweeps.jobs import run_job
 
 BACKENDS = [
@@ -79,6 +81,9 @@ def test_every_backend_falls_back_on_injected_failures(experiment, cls, run_cfg,
     # started from a fallback plan may fail too): every one counted
     assert fell_back[:3] == [1, 2, 3] and s["solver_failures"] == len(fell_back)
     assert list(calls.loc[[1, 2, 3], "status"]) == ["exception", "failed", "exception"]
+    # the status counts hold them too: the NaN "success" is a failed solve, not converged
+    assert s["solves_failed"] == (calls["status"] == "failed").sum() >= 1
+    assert s["solves_exception"] == (calls["status"] == "exception").sum() >= 2
     assert calls.loc[2, "solver_status"].startswith("non_finite")
     inputs = calls[list(result.steps.columns[result.steps.columns.isin(
         ["a", "phi_dot", "delta", "u1", "u2"])])]
@@ -160,6 +165,30 @@ def test_a_full_output_folder_is_one_message_naming_it(monkeypatch, capsys, tmp_
     assert code == EXIT_BAD_INPUT
     assert str(out) in err and "No space left on device" in err and "Traceback" not in err
     assert not (out / record.SUMMARY).exists()
+
+
+def _full(*args, **kwargs):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+@pytest.mark.parametrize("write", ["figures", "recording"])
+def test_a_folder_that_fills_up_after_the_record_is_one_message(write, monkeypatch, capsys,
+                                                                tmp_path) -> None:
+    """The record is written first; the figures or the recording that no longer fit are
+    one message naming the folder, and the record stays."""
+    if write == "figures":
+        monkeypatch.setattr(Figure, "savefig", _full)
+    else:
+        monkeypatch.setattr(RerunRecorder, "close", _full)
+    out = tmp_path / "run"
+    code = cli(["+experiment=car_cvxpy", "+ci=smoke", "scenario.t_max=0.2", "recorder=rerun",
+                "figures.enabled=true", f"hydra.run.dir={out}"])
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT
+    assert f"cannot write the {write} (the run record is written) (No space left on device)" \
+           f": {out}" in err
+    assert "Traceback" not in err and err.count("mpclab: error:") == 1
+    assert record.read_summary(out)["n_steps"] == 2 and (out / record.STEPS).is_file()
 
 
 class _Clock:

@@ -52,9 +52,22 @@ def test_the_end_of_run_line_is_in_words() -> None:
     line = summary_line(s)
     assert line.startswith("arrived in 10.4 s | 50 of 52 solves converged (2 truncated)")
     assert "1.61 ms per step (p95 3.20 ms)" in line
-    assert "sim realistic: latency 2.2 ms median, 3 deadline misses" in line
+    assert "sim realistic: latency 2.16 ms median, 3 deadline misses" in line
     nominal = summary_line({**s, "sim": "nominal", "status": "timeout", "sim_time_s": 60.0})
-    assert nominal.startswith("timeout at 60.0 s") and "sim" not in nominal
+    assert nominal.startswith("timeout at 60 s") and "sim" not in nominal
+    # the nominal preset with a latency set on the command line is not the ideal loop
+    late = summary_line({**s, "sim": "nominal", "sim_latency": "50 ms", "deadline_misses": 0,
+                         "latency_median_ms": 50.0})
+    assert line.count("|") == late.count("|")
+    assert "sim nominal: latency 50 ms median, 0 deadline misses" in late
+
+
+def test_the_end_of_run_line_rounds_to_three_digits() -> None:
+    from mpclab.__main__ import milliseconds, seconds
+
+    assert [milliseconds(v) for v in (0.0163042, 0.004, 1.6052524, 9.996, 12.34, 123.4)] == [
+        "0.0163", "0.00400", "1.61", "10", "12", "123"]
+    assert [seconds(v) for v in (9.88, 10.2000000001, 10.0)] == ["9.88", "10.2", "10"]
 
 
 def test_a_bad_constraint_option_names_its_key_and_where_it_was_set(capsys) -> None:

@@ -6,7 +6,9 @@ pool launcher) and once through a plain ``@hydra.main`` over the same config fol
 Hydra's basic sweeper and launcher. The task function is replaced in both by one that writes
 what it received (the config, the overrides, the group choices, the job number) into its
 job folder. Both must give the same jobs with the same configs, print the same for
-``--cfg``/``--info``, or refuse the command with the same cause. A user folder made by the
+``--cfg``/``--info``, or refuse the command with the same cause; and mpclab's preflight
+(:mod:`mpclab.preflight`) must have composed and checked every command that ran (a single
+run: the very config it ran) before Hydra acted on it. A user folder made by the
 test holds an experiment, a layout and a group that exist only there.
 """
 
@@ -26,6 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 
 import mpclab.__main__ as app
 from conftest import CONF
+from mpclab import preflight
 
 #: group choices that differ by design: the plain path runs Hydra's own sweeper and launcher
 PLUGIN_GROUPS = ("hydra/launcher", "hydra/sweeper")
@@ -216,6 +219,8 @@ def test_every_job_gets_the_config_hydra_gives(args, tmp_path, monkeypatch) -> N
     cmd = _fill(args, user)
     monkeypatch.setenv("HYDRA_FULL_ERROR", "1")  # both raise their error, to compare causes
     monkeypatch.setattr(app, "_task", capture)
+    checked: list[DictConfig] = []  # what mpclab's preflight composed and checked
+    monkeypatch.setattr(preflight, "check_config", checked.append)
     want = _run(_plain, _plain_args(cmd), tmp_path / "plain", monkeypatch)
     got = _run(_mpclab, cmd, tmp_path / "mpclab", monkeypatch)
     if want["raised"] is not None:  # refused: refused with the same cause
@@ -235,3 +240,9 @@ def test_every_job_gets_the_config_hydra_gives(args, tmp_path, monkeypatch) -> N
     assert len(got["jobs"]) == len(want["jobs"])
     for mine, hydras in zip(got["jobs"], want["jobs"], strict=True):
         assert mine == hydras
+    if got["jobs"]:  # checked before Hydra acted on it; a single run: the config it ran
+        assert len(checked) == 1
+        if "-m" not in cmd:
+            app_part = {k: v for k, v in OmegaConf.to_container(checked[0]).items()
+                        if k != "hydra"}
+            assert app_part == got["jobs"][0]["cfg"]

@@ -17,12 +17,14 @@ from omegaconf import OmegaConf
 
 from mpclab.errors import ConfigError
 from mpclab.instantiate import _is_flat, build
+from mpclab.registry import register_target
 
 
 class Colour(Enum):
     red = "red"
 
 
+@register_target  # a config builds registered classes only
 class Probe:
     """Keeps what it was called with."""
 
@@ -66,3 +68,19 @@ def test_a_failing_call_reads_as_hydras() -> None:
     with pytest.raises(ConfigError) as want:
         build(node(gain=-1.0, bounds=[{"_target_": TARGET, "gain": 1.0}]), "c")  # Hydra's
     assert str(got.value) == str(want.value) == "controller.gain must be >= 0, got -1.0"
+
+
+def test_an_unregistered_target_is_refused_before_anything_is_built() -> None:
+    built = []
+
+    class Unregistered:
+        def __init__(self, **kwargs: Any) -> None:
+            built.append(kwargs)
+
+    inner = {"_target_": f"{__name__}.Unregistered", "x": 1}
+    with pytest.raises(ConfigError, match=r"c\.bounds\._target_: 'test_instantiate\."
+                       r"Unregistered' is not a registered mpclab component"):
+        build(node(bounds=inner), "c")
+    with pytest.raises(ConfigError, match=r"c\._target_: 'builtins\.open' is not a regis"):
+        build(OmegaConf.create({"c": {"_target_": "builtins.open", "file": "x"}}).c, "c")
+    assert not built

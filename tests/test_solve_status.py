@@ -76,16 +76,20 @@ def test_ipopt_to_tolerance_is_converged() -> None:
     assert res.iterations is not None and res.iterations > 1
 
 
-def test_a_nan_result_labelled_success_is_a_failure_and_falls_back(monkeypatch) -> None:
+@pytest.mark.parametrize("where", ["u", "x_pred"])
+def test_a_nan_result_labelled_success_is_a_failure_and_falls_back(where, monkeypatch) -> None:
+    """A NaN input, or a NaN in the predicted states, from a solve that says it converged."""
     mpc = _zumo()
     x = np.array([0.4, 0.8, 0.0])
     first = mpc.step(0.0, x, _ctx())
 
     def nan_success(t, x, ctx):
         T, nu = mpc.horizon, mpc.plant.nu
-        return ControlStep(u=np.full(nu, np.nan), x_pred=np.zeros((T + 1, 3)),
-                           u_pred=np.zeros((T, nu)), status=SolveStatus.converged,
-                           solver_status="Solve_Succeeded")
+        res = ControlStep(u=np.zeros(nu), x_pred=np.zeros((T + 1, 3)),
+                          u_pred=np.zeros((T, nu)), status=SolveStatus.converged,
+                          solver_status="Solve_Succeeded")
+        getattr(res, where).flat[-1] = np.nan
+        return res
 
     monkeypatch.setattr(mpc, "_solve", nan_success)
     res = mpc.step(0.2, x, _ctx())

@@ -18,6 +18,7 @@ import yaml
 from hydra.errors import HydraException
 
 from conftest import ROOT, compose_cfg
+from mpclab.figure_file import read_figure
 
 pytestmark = pytest.mark.slow
 
@@ -41,6 +42,14 @@ def backend_axis() -> str:
     return "controller=cvxpy,casadi"
 
 
+def test_a_horizon_sweeps_figure_tells_the_horizons_apart(tmp_path: Path) -> None:
+    sweep("+experiment=car_cvxpy", "+ci=smoke", "controller.horizon=8,10",
+          "figures.enabled=true", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}")
+    fig = read_figure(tmp_path / "arrival_vs_compute.png")
+    assert fig.ink > 0.02 and all(p.artists > 0 for p in fig.panels)
+    assert fig.panels[0].legend == ("controller.horizon=8", "controller.horizon=10")
+
+
 def test_two_backends_three_seeds(tmp_path: Path) -> None:
     axis = backend_axis()
     out = sweep("+experiment=car_cvxpy", "+ci=smoke", "scenario.t_max=4.0", axis, "seed=0,1,2",
@@ -49,7 +58,8 @@ def test_two_backends_three_seeds(tmp_path: Path) -> None:
     assert len(df) == 6
     assert df["backend"].nunique() == 2 and df.groupby("backend")["seed"].nunique().eq(3).all()
     assert (df["status"] != "error").all(), df[["backend", "error"]]
-    assert (tmp_path / "arrival_vs_compute.png").stat().st_size > 0
+    fig = read_figure(tmp_path / "arrival_vs_compute.png")
+    assert set(fig.panels[0].legend) == set(df["backend"])  # one entry per backend
     assert len(pd.read_csv(tmp_path / "summary.csv")) == 6
     assert "6/6 jobs done, 0 failed" in out
     # every row was streamed as its job ended; each job names the workers that ran at once
@@ -119,7 +129,10 @@ import time
 
 from hydra.core.hydra_config import HydraConfig
 
+from mpclab.registry import register_target
 
+
+@register_target  # a config may build it (the config lists this module under plugins)
 def scenario(plant, rng, **options):
     if "seed=1" in HydraConfig.get().overrides.task:
         {fault}
@@ -138,7 +151,7 @@ def faulty_sweep(tmp_path: Path, fault: str, *overrides: str) -> tuple[pd.DataFr
     (tmp_path / "faulty.py").write_text(FAULTY.format(real=real, fault=fault))
     out_dir = tmp_path / "sweep"
     cmd = [sys.executable, "-m", "mpclab", "-m", *base, "scenario._target_=faulty.scenario",
-           "seed=0,1,2,3", *overrides, f"hydra.sweep.dir={out_dir}"]
+           "plugins=[faulty]", "seed=0,1,2,3", *overrides, f"hydra.sweep.dir={out_dir}"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "PYTHONPATH": str(tmp_path)})
     out = proc.stdout + proc.stderr

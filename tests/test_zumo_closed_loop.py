@@ -62,10 +62,11 @@ def test_bug2_on_random_layouts(run_cfg, seed) -> None:
     assert np.isfinite(s["min_clearance_m"]) and s["min_clearance_m"] > 0
 
 
-def test_bug2_dead_end_on_one_sqp_step_with_the_hard_constraint(run_cfg) -> None:
-    """The truncated option still arrives, honestly labelled."""
+def test_bug2_dead_end_on_two_sqp_steps_with_the_hard_constraint(run_cfg) -> None:
+    """The truncated option still arrives, honestly labelled (one SQP step a sample stalls
+    at the dead end's corner: the plan is too far from converged to track the path)."""
     res, _ = run_cfg(["+experiment=zumo_bug2", "controller=casadi_rti",
-                      "controller.sqp_iterations=1", "objective.constraints.obstacles.mode=hard"])
+                      "controller.sqp_iterations=2", "objective.constraints.obstacles.mode=hard"])
     s = res.summary
     assert s["status"] == "arrived" and s["solver_failures"] == 0, s
     assert s["solves_truncated"] > 0 and s["converged_fraction"] < 1.0, s

@@ -76,6 +76,7 @@ from mpclab.stopping import Terminated, default_stop_signals
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
+from mpclab.trust import check_config
 
 log = logging.getLogger(__name__)
 
@@ -156,6 +157,7 @@ def _run_one(
     ctx, config = _WORKER["hydra_context"], _WORKER["config"]
     try:
         sweep_config = _WORKER["composer"].job_config(overrides)
+        check_config(sweep_config, app=False)  # its hydra node, before run_job acts on it
     except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
         log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
         ret = record_job_error(ctx, config, idx, overrides, exc)

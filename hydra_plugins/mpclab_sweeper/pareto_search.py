@@ -82,7 +82,7 @@ class ParetoSearchSweeper(Sweeper):
     population_size
         NSGA-II's population.
     storage
-        An optuna storage URL; None: SQLite ``optuna.db`` in the sweep folder.
+        The study's SQLite file (``sqlite:///PATH``); None: ``optuna.db`` in the sweep folder.
     study_name
         The study's name in the storage.
     """
@@ -103,6 +103,9 @@ class ParetoSearchSweeper(Sweeper):
                               f"seeds={self.seeds}, n_trials={self.n_trials})")
         self.sampler, self.sampler_seed = sampler, int(sampler_seed)
         self.population_size = int(population_size)
+        if storage is not None and not str(storage).startswith("sqlite:///"):
+            raise ConfigError(f"hydra.sweeper.storage must be null or sqlite:///PATH (a file "
+                              f"of the study), got {storage!r}")
         self.storage, self.study_name = storage, study_name
         self.config: DictConfig | None = None
         self.launcher: Launcher | None = None

@@ -7,9 +7,10 @@ batches of ``max_batch_size``). Hydra's basic sweeper composes every job's confi
 launching any and aborts the sweep at the first that fails (``controller.horizon=10,ten``);
 this one launches them all, and a job whose config fails to compose becomes a
 ``status: error`` row with Hydra's message in its job folder, reported to the callbacks like a
-finished job. mpclab's pool launcher composes in its workers and writes those rows itself;
-for any other launcher (joblib, Ray) the jobs are composed here first and the failing ones
-recorded here. Written on Hydra's public ``Sweeper`` plugin interface; lives in the
+finished job; so does a job whose config may not be run (:func:`mpclab.trust.check_config`).
+mpclab's pool launcher composes and checks in its workers and writes those rows itself; for
+any other launcher (joblib, Ray) the jobs are composed and checked here first and the failing
+ones recorded here. Written on Hydra's public ``Sweeper`` plugin interface; lives in the
 ``hydra_plugins`` namespace because Hydra instantiates sweepers only from there;
 ``conf/hydra/sweeper/tolerant.yaml`` selects it.
 """
@@ -32,6 +33,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from mpclab import record
 from mpclab.sweeps.expand import job_overrides
 from mpclab.sweeps.jobs import error_summary
+from mpclab.trust import check_config
 
 log = logging.getLogger(__name__)
 
@@ -89,8 +91,9 @@ class TolerantSweeper(Sweeper):
         segment: list[list[str]] = []
         seg_start = start
         for idx, overrides in enumerate(batch, start=start):
-            try:
-                self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+            try:  # composed and checked before the launcher (Hydra) acts on any of it
+                check_config(self.hydra_context.config_loader.load_sweep_config(
+                    self.config, list(overrides)), app=False)
             except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
                 log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
                 if segment:  # the good jobs before it, numbered as usual

@@ -69,9 +69,23 @@ def host_key(flags: Sequence[str]) -> str:
     return "\n".join(sorted(set(keep))) or platform.machine()
 
 
-#: seconds per kB of C the compile takes, for the notice's estimate (the Zumo NLP's 1530 kB
-#: took 10.3 s at -O1 on a 2-core AMD EPYC; -O0 is faster, -O2 and -O3 slower)
-COMPILE_S_PER_KB = 0.007
+#: seconds the compile of ``kb`` kB of C takes, ``S_PER_KB * kb + S_PER_KB2 * kb**2``, for
+#: the notices' estimates: fitted to the Zumo NLPs at -O1 on a 2-core AMD EPYC (0.85 to 17 MB
+#: of C, 7 to 290 s; -O0 is faster, -O2 and -O3 slower)
+COMPILE_S_PER_KB = 5.3e-3
+COMPILE_S_PER_KB2 = 6.7e-7
+
+
+def compile_seconds(kb: float) -> float:
+    """The rough wall time of compiling ``kb`` kB of C at ``-O1`` [s]."""
+    return COMPILE_S_PER_KB * kb + COMPILE_S_PER_KB2 * kb * kb
+
+
+def rough(seconds: float) -> str:
+    """A rough duration in words: ``12 s``, ``5 min``, ``31 h``."""
+    if seconds < 90:
+        return f"{max(1, round(seconds))} s"
+    return f"{round(seconds / 60)} min" if seconds < 5400 else f"{round(seconds / 3600)} h"
 
 
 def announce(message: str) -> None:
@@ -84,11 +98,12 @@ def announce(message: str) -> None:
 
 def compile_shared(
     source: str, prefix: str, flags: Sequence[str], extra_key: Sequence[str] = (),
-    libs: Sequence[str] = (),
+    libs: Sequence[str] = (), header: str | None = None, keep_source: bool = False,
 ) -> Path:
     """The shared object of the C ``source``, compiled once and cached as ``PREFIX_KEY.so``;
     ``libs`` (``-L``, ``-l``, rpath options) follow the source on the command line and count
-    in the key like the flags.
+    in the key like the flags. With ``keep_source``, the source stays beside the library as
+    ``PREFIX_KEY.c`` (and ``header``, if given, as ``PREFIX_KEY.h``): :func:`kept_source`.
 
     Raises
     ------
@@ -104,6 +119,8 @@ def compile_shared(
     folder = cache_dir()
     lib = folder / f"{prefix}_{key}.so"
     if lib.exists():
+        if keep_source:
+            _keep(lib, source, header)
         return lib
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -116,7 +133,7 @@ def compile_shared(
     tmp_lib = src_name[:-2] + ".so"
     kb = len(source) // 1000
     announce(f"compiling {prefix} ({kb} kB of C, {' '.join(flags) or 'no flags'}; roughly "
-             f"{max(1, round(kb * COMPILE_S_PER_KB))} s): once, then cached in {folder}")
+             f"{rough(compile_seconds(kb))}): once, then cached in {folder}")
     t0 = time.perf_counter()
     try:
         subprocess.run([cc, "-fPIC", "-shared", *flags, src_name, "-o", tmp_lib, *libs, "-lm"],
@@ -129,7 +146,32 @@ def compile_shared(
     finally:
         for leftover in (src_name, tmp_lib):
             Path(leftover).unlink(missing_ok=True)
+    if keep_source:
+        _keep(lib, source, header)
     return lib
+
+
+def kept_source(lib: Path) -> list[Path]:
+    """The generated C kept beside the library ``lib`` (``.c``, then ``.h`` if there is one)."""
+    return [p for p in (lib.with_suffix(".c"), lib.with_suffix(".h")) if p.is_file()]
+
+
+def _keep(lib: Path, source: str, header: str | None) -> None:
+    """Write ``source`` (and ``header``) beside ``lib`` unless already there, each whole
+    (written under a temporary name and renamed, as the library)."""
+    for suffix, text in ((".c", source), (".h", header)):
+        path = lib.with_suffix(suffix)
+        if text is None or path.is_file():
+            continue
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=lib.parent)
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            os.chmod(tmp, 0o644)  # readable like any source (mkstemp makes it private)
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise CompileError(f"cannot keep the generated C in {lib.parent} ({exc}; set "
+                               "MPCLAB_CACHE)") from None
 
 
 def compile_indexed(

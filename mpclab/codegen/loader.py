@@ -1,7 +1,8 @@
 """Load a generated scheduled controller (:mod:`mpclab.codegen.scheduled`) into this process.
 
 :class:`ScheduledLibrary` compiles the C with the machine's C compiler (cached by
-:func:`mpclab.codegen.build.compile_shared`) with the prediction tables in, loads it with
+:func:`mpclab.codegen.build.compile_shared`, the source and its header kept beside the
+library) with the prediction tables in, loads it with
 ``ctypes`` and calls it on persistent buffers, so a step costs one foreign call and a few
 copies.
 """
@@ -15,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.codegen.build import compile_shared
-from mpclab.codegen.scheduled import ScheduledTables, scheduled_c
+from mpclab.codegen.build import compile_shared, kept_source
+from mpclab.codegen.scheduled import ScheduledTables, scheduled_c, scheduled_h
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -31,7 +32,10 @@ class ScheduledLibrary:
         self.tables = tables
         self.source = scheduled_c(tables)
         self.flags = (*flags, "-DMPC_PREDICTION")
-        self.path: Path = compile_shared(self.source, "scheduled", self.flags)
+        self.path: Path = compile_shared(self.source, "scheduled", self.flags,
+                                         header=scheduled_h(tables), keep_source=True)
+        #: the generated C kept beside the library (the source, whole, and its header)
+        self.generated: list[Path] = kept_source(self.path)
         lib = ctypes.CDLL(str(self.path))
         nx, nz, T = tables.nx, tables.nz, tables.horizon
         self._x = np.zeros(nx)

@@ -127,13 +127,45 @@ typedef double mpc_real;
 """
 
 
-def scheduled_c(tables: ScheduledTables, name: str = "mpc_scheduled") -> str:
-    """The C source of the scheduled controller described by ``tables``."""
+_PROTOTYPES = """\
+#define MPC_NPRED {npred}
+
+/* One controller step at the state x, with the reference previewed over the horizon in ref
+ * (the reference states at t, t + dt, ..., t + MPC_HORIZON dt, MPC_NX values each): the
+ * moves z (the inputs to apply now are z[0] .. z[MPC_NU - 1]), the operating point used and
+ * the QP's iterations. Returns 0 when the QP was solved to optimality, 1 when it stopped at
+ * its iteration cap (feasible, not optimal), 2 when its Hessian was not positive definite. */
+int mpc_step(const mpc_real x[MPC_NX], const mpc_real ref[MPC_NREF], mpc_real z[MPC_NZ],
+             int *op_out, int *iterations);
+
+#ifdef MPC_PREDICTION
+/* The predicted states X ((MPC_HORIZON + 1) MPC_NX) of operating point op for x and z. */
+void mpc_predict(int op, const mpc_real x[MPC_NX], const mpc_real z[MPC_NZ],
+                 mpc_real X[MPC_NPRED]);
+#endif
+"""
+
+
+def scheduled_h(tables: ScheduledTables, name: str = "mpc_scheduled") -> str:
+    """The header of the scheduled controller: ``mpc_real``, the sizes (``MPC_NX``, ...) and
+    the prototypes of ``mpc_step`` and ``mpc_predict``."""
     t = tables
-    nx, nz, T, nop = t.nx, t.nz, t.horizon, t.n_ops
+    guard = f"{name.upper()}_H"
+    return "\n".join([
+        f"#ifndef {guard}", f"#define {guard}",
+        _HEADER.format(name=name, nop=t.n_ops, T=t.horizon, nz=t.nz, qp=t.qp.value, nx=t.nx,
+                       nu=t.nu, nref=(t.horizon + 1) * t.nx, nw=len(t.ref_rows)),
+        _PROTOTYPES.format(npred=t.P.shape[1]), f"#endif /* {guard} */", ""])
+
+
+def scheduled_c(tables: ScheduledTables, name: str = "mpc_scheduled",
+                header_file: str | None = None) -> str:
+    """The C source of the scheduled controller described by ``tables``: one file with its
+    header (:func:`scheduled_h`) inline, or one that includes ``header_file``."""
+    t = tables
+    nop = t.n_ops
     real = "mpc_real"
-    out = [_HEADER.format(name=name, nop=nop, T=T, nz=nz, qp=t.qp.value, nx=nx, nu=t.nu,
-                          nref=(T + 1) * nx, nw=len(t.ref_rows))]
+    out = [scheduled_h(t, name) if header_file is None else f'#include "{header_file}"\n']
     out.append(BOX_QP_C.read_text())
     out += [
         c_array("mpc_K_x", t.K_x, real),
@@ -151,7 +183,7 @@ def scheduled_c(tables: ScheduledTables, name: str = "mpc_scheduled") -> str:
         out.append(c_array("mpc_H", t.H.reshape(nop, -1), real))
     out.append(_nearest(t))
     out.append(_step(t))
-    out += ["#ifdef MPC_PREDICTION", f"#define MPC_NPRED {t.P.shape[1]}",
+    out += ["#ifdef MPC_PREDICTION",
             c_array("mpc_P", t.P, real), c_array("mpc_x_shift", t.x_shift, real),
             _PREDICT, "#endif", ""]
     return "\n".join(out)
@@ -214,7 +246,6 @@ int mpc_step(const mpc_real x[MPC_NX], const mpc_real ref[MPC_NREF], mpc_real z[
 
 
 _PREDICT = """\
-/* The predicted states X ((T+1) nx) of operating point op's model for x and the moves z. */
 void mpc_predict(int op, const mpc_real x[MPC_NX], const mpc_real z[MPC_NZ],
                  mpc_real X[MPC_NPRED])
 {

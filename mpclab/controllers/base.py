@@ -88,11 +88,12 @@ class ControlStep:
 
     @property
     def finite(self) -> bool:
-        """Whether the input and the planned inputs are finite numbers (what is applied now
-        and what a fallback would apply later)."""
+        """Whether the input and the plan are finite numbers (what is applied now, what a
+        fallback would apply later and the predicted states the next solve starts from)."""
         # a NaN or inf anywhere makes the sum non-finite: cheaper than isfinite().all() for a
         # controller that steps in microseconds
-        return all(map(math.isfinite, self.u.tolist())) and math.isfinite(self.u_pred.sum())
+        return (all(map(math.isfinite, self.u.tolist())) and math.isfinite(self.u_pred.sum())
+                and math.isfinite(self.x_pred.sum()))
 
 
 def interrupted(exc: BaseException) -> KeyboardInterrupt | None:

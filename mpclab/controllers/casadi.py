@@ -46,7 +46,12 @@ from mpclab.controllers.base import (
 )
 from mpclab.controllers.blocking import Blocking, ControlHorizon
 from mpclab.controllers.casadi_codegen import GeneratedSolver
-from mpclab.controllers.casadi_compile import DEFAULT_FLAGS, compiled_nlp
+from mpclab.controllers.casadi_compile import (
+    DEFAULT_FLAGS,
+    announce_long_build,
+    compiled_nlp,
+    operations,
+)
 from mpclab.controllers.casadi_ocp import OCP, Shooting, build_ocp
 from mpclab.controllers.casadi_solvers import (
     CasadiQpSolver,
@@ -209,6 +214,8 @@ class CasadiMPC(Controller):
                 raise ConfigError(f"controller.active_sets: terms {sorted(unknown)} are not in "
                                   f"the objective; its terms: {', '.join(self._names)}")
             sets[frozenset(names)] = [n for n in self._names if n in names]
+        announce_long_build(lambda T: operations(self._ocp(self._names, terminal, T).nlp),
+                            self.horizon, self.jit or self.codegen)  # before it starts
         self._full = self._make_nlp(self._names, terminal, extra)
         self._by_set = {key: self._make_nlp(names, terminal, extra)
                         for key, names in sets.items()}
@@ -222,9 +229,7 @@ class CasadiMPC(Controller):
     # ------------------------------------------------------------------ build once
     def _make_nlp(self, names: list[str], terminal: Any, extra: dict[str, Any]) -> _NLP:
         """The OCP of the terms ``names``, its solver (compiled if ``jit``) and buffers."""
-        ocp = build_ocp(self.plant, self.objective, names, self.horizon, self.dt,
-                        self.shooting, self.max_detections, self.constraints, terminal,
-                        self.blocking, stagewise=self.solver is not CasadiSolver.ipopt)
+        ocp = self._ocp(names, terminal, self.horizon)
         name, opts = nlpsol_options(
             self.solver, self.qp_solver, max_iter=self.max_iter, tol=self.tol,
             sqp_iterations=self.sqp_iterations, warm_start=self.warm_start,
@@ -240,6 +245,14 @@ class CasadiMPC(Controller):
                 "lbx": ocp.lbw, "ubx": ocp.ubw, "lbg": ocp.lbg, "ubg": ocp.ubg})
         return _NLP(names, ocp, fn, buffer, trigger, io, lib is not None or gen is not None,
                     gen)
+
+    def _ocp(self, names: list[str], terminal: Any, horizon: int) -> OCP:
+        """The OCP over ``horizon`` steps: the controller's, blocked; another horizon (the
+        build estimate's) with every move free."""
+        blocking = self.blocking if horizon == self.horizon else None
+        return build_ocp(self.plant, self.objective, names, horizon, self.dt, self.shooting,
+                         self.max_detections, self.constraints, terminal, blocking,
+                         stagewise=self.solver is not CasadiSolver.ipopt)
 
     # ------------------------------------------------------------------ per step
     def reset(self, x0: Any) -> None:
@@ -406,6 +419,9 @@ class CasadiMPC(Controller):
         out = {"solver": self.solver.value, "jit": self.compiled, "codegen": self.codegen,
                "nlps": 1 + len(self._by_set),
                "constraints": {c.name: c.info() for c in self.constraints}}
+        if self.codegen:  # where its C is (printed at the end of the run)
+            out["generated_c"] = [str(p) for n in (self._full, *self._by_set.values())
+                                  for p in (n.generated.generated if n.generated else [])]
         if self._slack_max:  # soft constraints: how often and how far they gave way
             sl = np.array(self._slack_max)
             out["slack_steps"] = int(np.sum(sl > 1e-6))

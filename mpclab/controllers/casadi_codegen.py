@@ -5,7 +5,8 @@ its QP solver and the NLP's functions. For ``solver=sqp`` (sqpmethod + qrqp) the
 self-contained; for ``solver=fatrop`` it is CasADi's glue and the NLP's functions around the
 fatrop library (compiled against the headers and ``libfatrop`` that CasADi's wheel ships).
 It is compiled with the machine's C compiler, cached by a hash of the C source, the compiler,
-its flags and the CasADi version (:func:`mpclab.codegen.build.compile_shared`), and loaded
+its flags and the CasADi version (:func:`mpclab.codegen.build.compile_shared`; the source
+and CasADi's header are kept beside the library), and loaded
 with ``ca.external``; the controller calls it on the same arrays as the library solver.
 
 A generated function returns no statistics, so the status comes another way:
@@ -28,8 +29,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from mpclab.codegen.build import CompileError, compile_shared
-from mpclab.controllers.casadi_compile import generated_c
+from mpclab.codegen.build import CompileError, compile_shared, kept_source
+from mpclab.controllers.casadi_compile import generated_c_and_h
 from mpclab.controllers.casadi_ocp import OCP
 from mpclab.controllers.casadi_solvers import bind_buffers, read_status
 from mpclab.errors import ConfigError
@@ -75,7 +76,8 @@ class GeneratedSolver:
 
     def __init__(self, solver: ca.Function, ocp: OCP, flags: tuple[str, ...], tol: float):
         try:
-            source = generated_c(solver.generate)
+            source, header = generated_c_and_h(
+                lambda name: solver.generate(name, {"with_header": True}))
         except RuntimeError as exc:
             raise ConfigError(f"controller.codegen=true: CasADi cannot generate this solver "
                               f"as C ({str(exc).strip().splitlines()[-1][:200]})") from None
@@ -93,10 +95,12 @@ class GeneratedSolver:
             libs = (f"-L{home}", "-lfatrop", f"-Wl,-rpath,{home}")
         try:
             lib = compile_shared(source, "nlpsol", flags, extra_key=(ca.__version__,),
-                                 libs=libs)
+                                 libs=libs, header=header, keep_source=True)
         except CompileError as exc:
             raise ConfigError(f"controller.codegen=true: {exc}") from None
         self.library = lib
+        #: the generated C kept beside the library (the source as compiled, CasADi's header)
+        self.generated = kept_source(lib)
         self.fn = ca.external(solver.name(), str(lib))
         self.tol = float(tol)
         if self.fatrop:

@@ -177,13 +177,15 @@ def build_ocp(
 
     inf = np.full(nx, np.inf)
     w_parts, lbw, ubw, where = [], [], [], {}
+    size = [0]  # variables so far (a running count: summing the parts is quadratic in T)
 
     def var(name: str, k: int, sym: Any, lo: Any, hi: Any) -> None:
-        start = sum(int(v.shape[0]) for v in w_parts)
-        where[name, k] = np.arange(start, start + int(sym.shape[0]))
+        n = int(sym.shape[0])
+        where[name, k] = np.arange(size[0], size[0] + n)
+        size[0] += n
         w_parts.append(sym)
-        lbw.append(np.broadcast_to(np.asarray(lo, float), (int(sym.shape[0]),)).copy())
-        ubw.append(np.broadcast_to(np.asarray(hi, float), (int(sym.shape[0]),)).copy())
+        lbw.append(np.broadcast_to(np.asarray(lo, float), (n,)).copy())
+        ubw.append(np.broadcast_to(np.asarray(hi, float), (n,)).copy())
 
     if shooting is Shooting.multiple:
         Xs = [ca.SX.sym(f"x{k}", nx) for k in range(T + 1)]

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from mpclab import record
+from mpclab.codegen.loader import ScheduledLibrary
 from mpclab.controllers.base import (
     Controller,
     ControlStep,
@@ -183,6 +184,11 @@ class ScheduledMPC(Controller):
         self._active: int | None = None
         self.codegen = bool(codegen)
         self._sil = ScheduledSIL.of(self) if self.codegen else None
+
+    @property
+    def c_library(self) -> ScheduledLibrary | None:
+        """The compiled generated C it steps through (``codegen=true``), else None."""
+        return self._sil.library if self._sil is not None else None
 
     # ------------------------------------------------------------------ construction
     def predictor(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -362,6 +368,8 @@ class ScheduledMPC(Controller):
             "schedule_mode": self.mode.value, "n_operating_points": len(self.grid),
             "codegen": self.codegen,
         }
+        if self._sil is not None:  # where its C is (printed at the end of the run)
+            out["generated_c"] = [str(p) for p in self._sil.library.generated]
         if len(ops) < 2:
             return out | {"n_switches": 0}
         switch = np.flatnonzero(ops[1:] != ops[:-1]) + 1

@@ -53,6 +53,8 @@ class Plant:
     heading: ClassVar[str | None] = "theta"
     #: states drawn over time in the per-run figure (inputs are always drawn)
     plot_states: ClassVar[tuple[str, ...]] = ()
+    #: the unit of each state and input label, for figures (``{"v": "m/s"}``)
+    units: ClassVar[Mapping[str, str]] = {}
 
     def __init__(
         self,
@@ -87,6 +89,11 @@ class Plant:
 
     def input_index(self, label: str) -> int:
         return _index(label, self.inputs, "input")
+
+    def axis_label(self, label: str) -> str:
+        """``label [unit]`` for an axis (the label alone when the plant names no unit)."""
+        unit = self.units.get(label)
+        return f"{label} [{unit}]" if unit else label
 
     # ------------------------------------------------------------------ derived
     def _build(self) -> None:

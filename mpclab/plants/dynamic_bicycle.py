@@ -80,6 +80,8 @@ class DynamicBicycle(Plant):
     inputs = ("delta", "a")
     Params = DynamicBicycleParams
     plot_states = ("py", "theta", "V")
+    units = {"px": "m", "py": "m", "theta": "rad", "r": "rad/s", "beta": "rad", "V": "m/s",
+             "delta": "rad", "a": "m/s²"}
 
     def __init__(
         self,

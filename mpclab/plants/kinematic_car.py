@@ -25,6 +25,8 @@ class KinematicCar(Plant):
     inputs = ("a", "phi_dot")
     Params = KinematicCarParams
     plot_states = ("v", "phi")
+    units = {"px": "m", "py": "m", "theta": "rad", "v": "m/s", "phi": "rad", "a": "m/s²",
+             "phi_dot": "rad/s"}
 
     def rhs(self, x: ca.SX, u: ca.SX) -> ca.SX:
         _, _, theta, v, phi = ca.vertsplit(x)

@@ -22,6 +22,7 @@ class Unicycle(Plant):
     inputs = ("a", "omega")
     Params = UnicycleParams
     plot_states = ("v",)
+    units = {"px": "m", "py": "m", "theta": "rad", "v": "m/s", "a": "m/s²", "omega": "rad/s"}
 
     def rhs(self, x: ca.SX, u: ca.SX) -> ca.SX:
         _, _, theta, v = ca.vertsplit(x)

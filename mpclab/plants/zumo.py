@@ -29,6 +29,7 @@ class Zumo(Plant):
     position = ("x", "y")
     heading = "theta"
     plot_states = ("theta",)
+    units = {"x": "m", "y": "m", "theta": "rad", "u1": "rad/s", "u2": "rad/s"}
 
     def rhs(self, x: ca.SX, u: ca.SX) -> ca.SX:
         theta = x[2]

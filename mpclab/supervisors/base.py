@@ -15,6 +15,7 @@ class Supervisor:
 
     ``follow`` is, after :meth:`update`, the mask ``(n,)`` of the detections that form the
     boundary being followed (None: none), handed to the controller with the step.
+    :meth:`target` may replace the scenario's reference over the horizon for a step.
     """
 
     follow: FloatArray | None = None
@@ -27,6 +28,11 @@ class Supervisor:
     ) -> tuple[str, frozenset[str] | None]:
         """Return ``(mode, active term names)``; ``None`` means every term."""
         return "", None
+
+    def target(self, t: float, horizon: int, dt: float) -> FloatArray | None:
+        """After :meth:`update`: the reference over the horizon ``(horizon + 1, nx)`` the
+        controller is given this step in place of the scenario's, or None (the scenario's)."""
+        return None
 
 
 @component("supervisor", "none")

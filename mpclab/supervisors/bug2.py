@@ -11,12 +11,20 @@ wall is reached without following the wall on to the m-line. Either rule keeps B
 progress argument: every leave point is closer to the goal than the hit point before it.
 Which terms each mode switches on is configuration, not code.
 
-The boundary followed is the obstacle that was hit: the detections are segmented into runs
-(connected sets of points less than ``run_link`` apart: what the robot cannot pass
-between); the run holding the blocking point is remembered at the hit and tracked step to
-step (the runs within ``run_link`` of the points followed before, or else the nearest run:
-a boundary that turns out to close a narrow gap joins it), and its mask is :attr:`follow`, which
-the controller hands to the wall-following term.
+The boundary followed is the obstacle that was hit: every detected point is remembered in
+the world frame, and points less than ``run_link`` apart (a gap the robot cannot pass) are
+one obstacle (:class:`~mpclab.supervisors.boundary.ObstacleMemory`); the obstacle of the
+blocking point is the one followed, and the mask of this step's detections on it is
+:attr:`follow`, which the controller hands to a wall-following term. With ``path_speed > 0``
+the supervisor follows the boundary itself: in ``wall_follow`` the controller's reference
+over the horizon (:meth:`target`) is the path along the followed obstacle at ``clearance``
+(:mod:`mpclab.supervisors.boundary`) sampled at ``path_speed``, for a tracking term.
+
+A way can be blocked where no detected point lies in the corridor toward the goal (two
+obstacles either side of it, closer together than the robot with its margin): with
+``stuck_window > 0``, a robot in ``go_to_goal`` that has come less than ``stuck_progress``
+nearer the goal over that window, with an obstacle detected within ``block_range``, counts
+as having hit the obstacle nearest to it.
 """
 
 from __future__ import annotations
@@ -27,11 +35,12 @@ from types import MappingProxyType
 
 import numpy as np
 
-from mpclab.errors import ConfigError, number
+from mpclab.errors import ConfigError, number, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 from mpclab.supervisors.base import FloatArray, Supervisor
+from mpclab.supervisors.boundary import ObstacleMemory, Side, streamline
 
 
 class Bug2Mode(StrEnum):
@@ -66,7 +75,19 @@ class Bug2(Supervisor):
         Also leave off the m-line when the goal is nearer than this and the corridor to it
         is free of detected points [m] (at most the sensor's range); 0: the m-line only.
     run_link
-        Detected points nearer than this to each other belong to one boundary [m].
+        Detected points nearer than this to each other belong to one obstacle [m].
+    path_speed
+        > 0: in ``wall_follow``, the reference over the horizon is the path along the
+        followed boundary, sampled at this speed [m/s]; 0: the scenario's (a term follows
+        the wall).
+    clearance
+        The path's distance from the followed boundary's detected points [m].
+    side
+        ``right`` or ``left``: the side of the robot the followed boundary stays on.
+    stuck_window
+        > 0: the window of the stuck rule (see the module docstring) [s]; 0: off.
+    stuck_progress
+        Less progress toward the goal than this over ``stuck_window`` is stuck [m].
     objective
         Injected; every term a mode names must be one of its terms, and every one of its
         terms must be named by some mode (a term no mode names would be silently off).
@@ -82,6 +103,11 @@ class Bug2(Supervisor):
         leave_margin: float = 0.05,
         goal_sight_range: float = 0.0,
         run_link: float = 0.15,
+        path_speed: float = 0.0,
+        clearance: float = 0.08,
+        side: Side | str = Side.right,
+        stuck_window: float = 0.0,
+        stuck_progress: float = 0.02,
         objective: Objective | None = None,
     ) -> None:
         given = dict(modes or MODES)
@@ -100,7 +126,14 @@ class Bug2(Supervisor):
         self.sight = number(goal_sight_range, "supervisor.goal_sight_range (0: off)",
                             at_least=0)
         self.run_link = number(run_link, "supervisor.run_link", above=0)
+        self.path_speed = number(path_speed, "supervisor.path_speed (0: off)", at_least=0)
+        self.clearance = number(clearance, "supervisor.clearance", above=0)
+        self.side = parse_choice(Side, side, "supervisor.side")
+        self.stuck_window = number(stuck_window, "supervisor.stuck_window (0: off)",
+                                   at_least=0)
+        self.stuck_progress = number(stuck_progress, "supervisor.stuck_progress", above=0)
         self._ip = [plant.state_index(s) for s in plant.position]
+        self._ith = plant.state_index(plant.heading) if plant.heading else None
         self.mode = Bug2Mode.go_to_goal
         #: ((x_start, y_start), (x_goal, y_goal)), set by reset
         self.mline: tuple[tuple[float, float], tuple[float, float]] | None = None
@@ -114,11 +147,15 @@ class Bug2(Supervisor):
         g = np.asarray(goal, dtype=float)[self._ip]
         self.mline = ((float(s[0]), float(s[1])), (float(g[0]), float(g[1])))
         self._start, self._goal = s, g
+        self._goal_state = np.asarray(goal, dtype=float).copy()
+        self._progress = Window(self.stuck_window)  # the goal distance in go_to_goal
         self.mode = Bug2Mode.go_to_goal
         self.hit_point = None
         self.hits = []
         self._last: FloatArray | None = None
-        self._followed: FloatArray | None = None
+        self._heading: float | None = None
+        self.memory = ObstacleMemory(self.run_link)
+        self._member: int | None = None  # a point of the obstacle followed
         self.follow = None
 
     def update(
@@ -128,32 +165,68 @@ class Bug2(Supervisor):
             raise RuntimeError("Bug2.update called before reset")
         p = np.asarray(x, dtype=float)[self._ip]
         det = np.asarray(detections, dtype=float).reshape(-1, 2)
-        labels = runs(det, self.run_link)
+        ids = self.memory.add(det)
         if self.mode is Bug2Mode.go_to_goal:
-            if self.blocked(p, det):
+            block = self.blocking(p, det)
+            if not len(block) and self.stuck(t, p, det):
+                block = np.arange(len(det))
+            if len(block):
                 self.mode = Bug2Mode.wall_follow
                 self.hit_point = p.copy()
                 self.hits.append((float(t), float(p[0]), float(p[1])))
-                block = self.blocking(p, det)
-                near = block[np.argmin(np.linalg.norm(det[block] - p, axis=1))]
-                self._followed = det[labels == labels[near]]
+                self._member = int(ids[block[np.argmin(np.linalg.norm(det[block] - p, axis=1))]])
         elif self.can_leave(p, self._last) or self.goal_in_sight(p, det):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
-        elif len(det):  # the runs that touch the one followed before, else the nearest
-            gap = np.array([np.min(np.linalg.norm(
-                det[labels == r][:, None] - self._followed[None], axis=2))
-                for r in range(labels.max() + 1)])
-            keep = np.flatnonzero(gap < self.run_link)
-            keep = keep if keep.size else [int(np.argmin(gap))]
-            self._followed = det[np.isin(labels, keep)]
-        if self.mode is Bug2Mode.wall_follow and self._followed is not None:
-            self.follow = np.array([float(np.any(np.all(np.isclose(d, self._followed), axis=1)))
-                                    for d in det])
+            self._member = None
+            self._progress.clear()
+        if self._member is not None:
+            root = self.memory.find(self._member)
+            self.follow = np.array([float(self.memory.find(int(i)) == root) for i in ids])
         else:
-            self.follow, self._followed = None, None
+            self.follow = None
         self._last = p
+        self._heading = None if self._ith is None else float(np.asarray(x)[self._ith])
         return self.mode.value, self.modes[self.mode]
+
+    def followed(self, reach: float = 0.6) -> FloatArray:
+        """``(n, 2)``: the remembered points of the obstacle followed within ``reach`` of
+        the robot [m] (none in ``go_to_goal``)."""
+        if self._member is None or self._last is None:
+            return np.zeros((0, 2))
+        pts = self.memory.points[self.memory.obstacle(self._member)]
+        return pts[np.linalg.norm(pts - self._last, axis=1) < reach]
+
+    def target(self, t: float, horizon: int, dt: float) -> FloatArray | None:
+        """In ``wall_follow`` with ``path_speed > 0``: the goal state with its position
+        moved along the followed boundary's path, ``path_speed * dt`` a step, and its
+        heading the path's direction (unwrapped to the robot's); else None."""
+        if self.path_speed <= 0 or self.mode is not Bug2Mode.wall_follow:
+            return None
+        points = self.followed()
+        if not len(points):
+            return None
+        path = streamline(self._last, points, self.clearance, self.side,
+                          self.path_speed * dt, horizon)
+        ref = np.tile(self._goal_state, (horizon + 1, 1))
+        ref[:, self._ip] = path[:, :2]
+        if self._ith is not None:  # unwrapped from the robot's heading
+            ref[:, self._ith] = np.unwrap(np.concatenate([[self._heading], path[:, 2]]))[1:]
+        return ref
+
+    def stuck(self, t: float, p: FloatArray, detections: FloatArray) -> bool:
+        """The stuck rule (module docstring): less than ``stuck_progress`` nearer the goal
+        over the last ``stuck_window`` seconds in ``go_to_goal``, an obstacle detected
+        within ``block_range``. Always False with ``stuck_window = 0``."""
+        if self.stuck_window <= 0:
+            return False
+        before = self._progress.push(t, float(np.linalg.norm(self._goal - p)))
+        near = len(detections) and float(
+            np.min(np.linalg.norm(detections - p, axis=1))) < self.block_range
+        if before is not None and before - self._progress.last < self.stuck_progress and near:
+            self._progress.clear()
+            return True
+        return False
 
     # ------------------------------------------------------------------ geometry
     def blocking(self, p: FloatArray, detections: FloatArray,
@@ -212,26 +285,28 @@ class Bug2(Supervisor):
         return bool(closer and on)
 
 
-def runs(points: FloatArray, link: float) -> np.ndarray:
-    """Label ``(n,)`` of each point's run: the connected sets of points less than ``link``
-    apart (labels 0, 1, ... in order of first appearance)."""
-    n = len(points)
-    labels = np.full(n, -1)
-    if n == 0:
-        return labels
-    near = np.linalg.norm(points[:, None] - points[None], axis=2) < link
-    run = 0
-    for i in range(n):
-        if labels[i] >= 0:
-            continue
-        stack, labels[i] = [i], run
-        while stack:
-            j = stack.pop()
-            for k in np.flatnonzero(near[j] & (labels < 0)):
-                labels[k] = run
-                stack.append(k)
-        run += 1
-    return labels
+class Window:
+    """The values pushed over the last ``span`` seconds."""
+
+    def __init__(self, span: float) -> None:
+        self.span = float(span)
+        self._items: list[tuple[float, object]] = []
+
+    def push(self, t: float, value: object) -> object | None:
+        """Add ``value`` at ``t``; return the oldest value kept once the window spans
+        ``span`` seconds, else None."""
+        self._items.append((float(t), value))
+        while len(self._items) > 1 and t - self._items[1][0] >= self.span - 1e-9:
+            self._items.pop(0)
+        t0, first = self._items[0]
+        return first if t - t0 >= self.span - 1e-9 else None
+
+    @property
+    def last(self) -> object:
+        return self._items[-1][1]
+
+    def clear(self) -> None:
+        self._items = []
 
 
 def check_modes(modes: Mapping[str, Sequence[str]], terms: Sequence[str]) -> None:

@@ -25,6 +25,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from mpclab import stream, tables
+from mpclab.registry import register_target
 from mpclab.sweeps.expand import job_overrides
 
 log = logging.getLogger("mpclab.sweep")
@@ -129,6 +130,7 @@ def job_outcome(job_return: JobReturn) -> tuple[str, bool]:
     return str(value.get("status")), bool(value.get("skipped"))
 
 
+@register_target  # hydra.callbacks.sweep in conf/config.yaml
 class SweepCallback(Callback):
     """Progress lines during a multirun; ``mpclab.tables`` over the sweep folder at its end.
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import inspect
 import logging
 import os
-import pydoc
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,6 +22,7 @@ from omegaconf import DictConfig
 from mpclab import record
 from mpclab.errors import bad_input_message
 from mpclab.origin import RunOrigin
+from mpclab.registry import TARGETS
 from mpclab.tables import override_key
 from mpclab.warm import WORKER_CACHE
 
@@ -81,12 +81,12 @@ def error_message(exc: BaseException) -> str:
 def component_name(node: Any) -> str | None:
     """What a run's row calls the plant or controller that config ``node`` builds: its
     class's registered name (as a finished run writes it), None where ``node`` names no
-    class that imports."""
+    registered class."""
     if not isinstance(node, DictConfig) or "_target_" not in node.keys():
         return None
     try:
-        obj = pydoc.locate(str(node["_target_"]))
-    except Exception:  # noqa: BLE001  (pydoc.ErrorDuringImport, a bad interpolation)
+        obj = TARGETS.get(str(node["_target_"]))  # looked up, never imported by name
+    except Exception:  # noqa: BLE001  (a bad interpolation)
         return None
     return getattr(obj, "registered_name", obj.__name__) if inspect.isclass(obj) else None
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from mpclab.figure_file import save_figure
 from mpclab.lazy import pyplot
 
 
@@ -58,7 +59,4 @@ def plot_robustness(groups: pd.DataFrame, level: str, path: Path, dpi: int = 110
         bottom.set_xscale("log")
     top.set_title(f"robustness: {int(groups['runs'].sum())} runs", fontsize=10, loc="left")
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi)

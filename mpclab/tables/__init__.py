@@ -26,10 +26,10 @@ import yaml
 
 from mpclab import record, stream
 from mpclab.tables.groups import (
-    _numbers,
     _step_times_ms,
     group_keys,
     group_table,
+    numeric_column,
 )
 
 #: PyYAML's safe loader, libyaml's where PyYAML has it (5-10 times faster)
@@ -265,9 +265,9 @@ def contended(df: pd.DataFrame) -> pd.Series:
     load average exceeded the cores during the job; False where none of these was seen;
     missing where the run has no timing.
     """
-    share, cores, workers = (_numbers(df, c) for c in
+    share, cores, workers = (numeric_column(df, c) for c in
                              ("compute_cpu_share", "load.cores", "load.workers"))
-    load = np.fmax(_numbers(df, "load.load_1m_start"), _numbers(df, "load.load_1m_end"))
+    load = np.fmax(numeric_column(df, "load.load_1m_start"), numeric_column(df, "load.load_1m_end"))
     flag = (share < CONTENDED_SHARE) | (workers > cores) | (load > cores)
     return flag.astype("boolean").where(share.notna(), pd.NA)
 

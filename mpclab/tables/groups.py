@@ -18,7 +18,7 @@ from mpclab.status import SOLVE_KEYS, SolveStatus
 NOT_GROUPED = ("seed",)
 
 
-def _numbers(df: pd.DataFrame, col: str) -> pd.Series:
+def numeric_column(df: pd.DataFrame, col: str) -> pd.Series:
     """Column ``col`` as floats (all NaN if ``df`` has no such column)."""
     if col not in df:
         return pd.Series(np.nan, index=df.index, dtype=float)
@@ -75,14 +75,14 @@ def group_table(
             "errors": int((g["status"] == "error").sum()),
             **_rate("success", int(arrived.sum()), len(g)),
             **_rate("collision", int((g["status"] == "collision").sum()), len(g)),
-            "min_clearance_m": float(_numbers(g, "min_clearance_m").min())
-            if _numbers(g, "min_clearance_m").notna().any() else None,
+            "min_clearance_m": float(numeric_column(g, "min_clearance_m").min())
+            if numeric_column(g, "min_clearance_m").notna().any() else None,
             "arrival_median_s": float(g.loc[arrived, "arrival_time_s"].median())
             if arrived.any() else None,
             "step_median_ms": float(np.median(ms)) if ms.size else None,
             "step_p95_ms": float(np.percentile(ms, 95)) if ms.size else None,
-            "step_cpu_median_ms": float(_numbers(g, "compute_cpu_median_ms").median())
-            if _numbers(g, "compute_cpu_median_ms").notna().any() else None,
+            "step_cpu_median_ms": float(numeric_column(g, "compute_cpu_median_ms").median())
+            if numeric_column(g, "compute_cpu_median_ms").notna().any() else None,
             "contended_runs": int(flagged.fillna(False).sum()),
             **_solve_shares(g),
         })

@@ -31,7 +31,7 @@ import pandas as pd
 
 from mpclab import record
 from mpclab.errors import ConfigError, parse_choice
-from mpclab.tables.groups import NOT_GROUPED, _numbers
+from mpclab.tables.groups import NOT_GROUPED, numeric_column
 
 
 class ParetoObjective(StrEnum):
@@ -101,7 +101,7 @@ def pareto_points(
     for values, g in groups:
         values = values if isinstance(values, tuple) else (values,)
         point = dict(zip(keys, values, strict=True))
-        misses = _numbers(g, "deadline_misses").fillna(0).sum()
+        misses = numeric_column(g, "deadline_misses").fillna(0).sum()
         row = {**point, "overrides": " ".join(f"{k}={override_value(v)}" for k, v in point.items()),
                "runs": len(g), "arrived": int((g["status"] == "arrived").sum()),
                "collisions": int((g["status"] == "collision").sum()),
@@ -133,7 +133,7 @@ def _objective(obj: ParetoObjective, g: pd.DataFrame,
                step_ms: Mapping[str, np.ndarray]) -> dict[str, float]:
     """An objective's value for the runs ``g`` of one point, and its spread over seeds."""
     if obj in _PER_SEED:
-        per_seed = _numbers(g, _PER_SEED[obj]).dropna()
+        per_seed = numeric_column(g, _PER_SEED[obj]).dropna()
     else:
         per_run = [_call_ms(r, obj, step_ms) for r in g["run_dir"]]
         per_seed = pd.Series([np.percentile(v, 95) for v in per_run if v.size], dtype=float)

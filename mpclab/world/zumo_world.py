@@ -258,9 +258,9 @@ class ObstacleScenario(Scenario):
         """Obstacle discs (black) on a matplotlib axis, with the world's extent."""
         from matplotlib.patches import Circle
 
-        for cx, cy, r in self.obstacles:
-            ax.add_patch(Circle((cx, cy), r, color="k", alpha=0.85, lw=0))
-        ax.plot([], [], "o", color="k", label="obstacles")
+        for i, (cx, cy, r) in enumerate(self.obstacles):  # one legend entry: a patch
+            ax.add_patch(Circle((cx, cy), r, color="k", alpha=0.85, lw=0,
+                                label=None if i else "obstacles"))
         x0, x1, y0, y1 = self.extent
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0, y1)
