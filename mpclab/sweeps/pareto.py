@@ -144,6 +144,8 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
     if len(xs) and (xs > 0).all() and xs.max() > 20 * xs.min():  # decades apart
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(plt.FuncFormatter(  # 2 and 5 of each decade, plainly
+            lambda v, _: f"{v:g}" if f"{v:g}"[0] in "25" else ""))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
