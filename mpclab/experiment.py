@@ -148,6 +148,7 @@ def run_experiment(
         **result.summary,
         **run.scenario.metrics(result.steps),
         **run.controller.metrics(result.steps),
+        **(run.controller.blocking.summary() if run.controller.blocking else {}),
         PROBLEM_KEY: getattr(run.controller.solved_problem, "value", None),
         "versions": record.versions(),
     }

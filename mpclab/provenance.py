@@ -44,11 +44,14 @@ def cpu_model() -> str:
 
 
 def command(argv: Sequence[str] | None = None) -> str:
-    """``uv run python SCRIPT ARGS`` as typed from the repository's top folder."""
+    """``uv run python SCRIPT ARGS`` (``-m PACKAGE ARGS`` for a package's ``__main__``) as
+    typed from the repository's top folder."""
     argv = list(sys.argv if argv is None else argv)
     script = Path(argv[0]).resolve()
     shown = str(script.relative_to(ROOT)) if script.is_relative_to(ROOT) else argv[0]
-    return "uv run python " + " ".join(shlex.quote(a) for a in [shown, *argv[1:]])
+    if script.name == "__main__.py" and script.is_relative_to(ROOT):  # python -m PACKAGE
+        shown = "-m " + ".".join(script.parent.relative_to(ROOT).parts)
+    return "uv run python " + " ".join([shown, *(shlex.quote(a) for a in argv[1:])])
 
 
 def stamp(argv: Sequence[str] | None = None) -> str:

@@ -41,6 +41,8 @@ from mpclab.registry import import_plugins, require_registered, target
 #: mpclab's sweeper and launcher: each checks every job's config before Hydra applies it
 CHECKING_SWEEPER = "hydra_plugins.mpclab_sweeper.tolerant_sweeper.TolerantSweeper"
 CHECKING_LAUNCHER = "hydra_plugins.mpclab_launcher.pool_launcher.PoolLauncher"
+#: mpclab's multi-objective search (its jobs checked by mpclab's launcher, as any sweep's)
+SEARCH_SWEEPER = "hydra_plugins.mpclab_sweeper.pareto_search.ParetoSearchSweeper"
 #: installed Hydra plugins a config may select besides Hydra's own and mpclab's (the Ray
 #: launcher that starts or joins a cluster; not the one that provisions machines on AWS)
 OTHER_PLUGINS = {
@@ -62,7 +64,7 @@ def allowed_plugins(key: str) -> list[str]:
     """The ``_target_`` values ``key`` (``hydra.launcher`` or ``hydra.sweeper``) may take:
     Hydra's own plugins of that kind, mpclab's, and :data:`OTHER_PLUGINS`."""
     found = [target(c) for c in Plugins.instance().discover(_PLUGIN_KINDS[key])]
-    mine = (CHECKING_SWEEPER, CHECKING_LAUNCHER)
+    mine = (CHECKING_SWEEPER, CHECKING_LAUNCHER, SEARCH_SWEEPER)
     return sorted(t for t in found if t.startswith("hydra.") or t in mine
                   or t in OTHER_PLUGINS[key])
 

@@ -25,15 +25,19 @@ CONVERGED_GAP = 1e-3
 CONVERGED_DU0 = 1e-2
 
 
-def check_common(df: pd.DataFrame) -> None:
+def check_common(df: pd.DataFrame, blocked: bool = False) -> None:
     """What holds for every backend: the reference is the best plan (nobody beats it beyond
     the backends' tolerances), every rollout keeps its bounds, and a backend solving the
-    same OCP that reports `converged` agrees with the reference in cost and first input."""
+    same OCP that reports `converged` agrees with the reference in cost and first input
+    (``blocked``: every backend is blocked, and agrees in cost with the blocked reference)."""
     ref = df[df.backend == "reference"]
     assert (ref.viol < 1e-8).all()
     assert (df.gap > -1e-5).all(), df[df.gap <= -1e-5]
     assert (df.viol < 1e-5).all(), df[df.viol >= 1e-5]
     same_ocp = df[df.backend.isin(["casadi", "cvxpy"]) & (df.status == "converged")]
+    if blocked:
+        assert (same_ocp.gap_held.abs() < CONVERGED_GAP).all(), same_ocp
+        return
     assert (same_ocp.gap < CONVERGED_GAP).all(), same_ocp
     assert (same_ocp.du0 < CONVERGED_DU0).all(), same_ocp
 
@@ -68,6 +72,24 @@ def test_bicycle_backends_against_the_reference() -> None:
     assert row.loc["adaptive", "gap_held"] < 0.01
     assert row.loc["scheduled", "gap_held"] > 10 * row.loc["adaptive", "gap_held"]
     np.testing.assert_array_less(df.viol, 1e-6)
+
+
+def test_bicycle_backends_at_one_blocking_against_the_blocked_reference() -> None:
+    """Every backend blocked as ``control_horizon=[1,2,7]`` and a reference solving the OCP
+    under the same blocking: CasADi and CVXPY solve that OCP (their plans are its optimum),
+    the adaptive QP is near it, the switched one no better than it."""
+    df = agreement.compare(
+        agreement.CASES["bicycle"], samples={"regular_circle_turn": [157]},
+        backends=["scheduled", "adaptive", "cvxpy", "casadi"], control_horizon="[1,2,7]",
+    )
+    check_common(df, blocked=True)
+    row = df.set_index("backend")
+    assert row.loc["reference_held", "gap"] > 0.01  # blocking is a restriction
+    for b in ("casadi", "cvxpy"):
+        assert row.loc[b, "status"] == "converged"
+        assert abs(row.loc[b, "gap_held"]) < 1e-5, b
+    assert 0 <= row.loc["adaptive", "gap_held"] < 0.01
+    assert row.loc["scheduled", "gap_held"] > -1e-6
 
 
 _ZPATH = _PATH.with_name("zumo_nlp.py")

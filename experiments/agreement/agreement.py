@@ -5,6 +5,7 @@ plan scored by ONE cost function against a tight-tolerance IPOPT reference.
     uv run python experiments/agreement/agreement.py --case car
     uv run python experiments/agreement/agreement.py --case bicycle --dt 0.05
     uv run python experiments/agreement/agreement.py --warm           # in each own closed loop
+    uv run python experiments/agreement/agreement.py --case bicycle --control-horizon 3
 
 The Zumo NMPC (its NLP with detections, per BUG2 mode) has its own script, ``zumo_nlp.py``.
 
@@ -19,7 +20,9 @@ objective is evaluated on that rollout in CasADi (``true_cost``): the backend's 
 OCP (plant, objective, bounds, terminal constraint, horizon, dt) with its own multiple-
 shooting IPOPT NLP at tol 1e-10, started from a zero-input rollout and from every backend's
 plan, keeping the best feasible. For control-horizon-1 backends (the scheduled controller) a
-second reference solves the same OCP with the input held over the horizon.
+second reference solves the same OCP with the input held over the horizon; with
+``--control-horizon`` every backend is blocked so (``controller.control_horizon``) and the
+second reference solves the OCP under the same blocking (:mod:`mpclab.controllers.blocking`).
 
 Columns: ``gap`` = (true_cost - ref) / ref; ``gap_held`` the same against the held-input
 reference; ``du0`` = max over inputs of |u0 - u0_ref| / (input range); ``viol`` = largest
@@ -42,10 +45,12 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 from mpclab.controllers.base import StepContext, terminal_rows  # noqa: E402
+from mpclab.controllers.blocking import Blocking  # noqa: E402
 from mpclab.experiment import build_run, compose  # noqa: E402
 from mpclab.instantiate import build  # noqa: E402
 from mpclab.objectives.base import Objective, TermContext  # noqa: E402
 from mpclab.plants.base import Plant  # noqa: E402
+from mpclab.provenance import stamp  # noqa: E402
 from mpclab.sim import simulate  # noqa: E402
 
 #: IPOPT for the reference: tight, never stopping at the "acceptable" level, many iterations
@@ -111,11 +116,13 @@ def _fill(overrides: list[str], scenario: str, dt: float) -> list[str]:
 
 
 class Scorer:
-    """The true cost of an input sequence and a tight IPOPT reference, for one OCP."""
+    """The true cost of an input sequence and a tight IPOPT reference, for one OCP;
+    ``blocking`` is the held-input reference's (default: one move held over the horizon)."""
 
     def __init__(self, plant: Plant, objective: Objective, horizon: int, dt: float,
-                 terminal: dict[str, float]) -> None:
+                 terminal: dict[str, float], blocking: Blocking | None = None) -> None:
         self.plant, self.T, self.dt = plant, horizon, dt
+        self.blocking = blocking or Blocking.of(1, horizon)
         objective.bind(plant, "casadi")
         nx, nu, T = plant.nx, plant.nu, horizon
         self.term_rows = terminal_rows(plant, terminal)
@@ -129,7 +136,8 @@ class Scorer:
                           detections=ca.DM.zeros(2, 1), mask=ca.DM.zeros(1))
         cost = sum(term.casadi_cost(X, U, ctx) for term in objective)
         self._cost = ca.Function("true_cost", [x0, U, target, u_prev], [cost, X])
-        self._ocp = {held: self._build_ocp(objective, held) for held in (False, True)}
+        self._ocp = {False: self._build_ocp(objective, None),
+                     True: self._build_ocp(objective, self.blocking)}
 
     def true_cost(self, x0: np.ndarray, U: np.ndarray, target: np.ndarray,
                   u_prev: np.ndarray) -> tuple[float, float]:
@@ -145,13 +153,13 @@ class Scorer:
         v += [abs(X[-1, i] - value) for i, value in self.term_rows]
         return float(max(v))
 
-    def _build_ocp(self, objective: Objective, held: bool) -> ca.Function:
-        """Multiple shooting: variables (X, U) or (X, u) with u held over the horizon."""
+    def _build_ocp(self, objective: Objective, blocking: Blocking | None) -> ca.Function:
+        """Multiple shooting: variables (X, U) or (X, V), the moves V held in the blocks."""
         p, T = self.plant, self.T
         nx, nu = p.nx, p.nu
         X = ca.SX.sym("X", nx, T + 1)
-        Uv = ca.SX.sym("U", nu, 1 if held else T)
-        U = ca.repmat(Uv, 1, T) if held else Uv
+        Uv = ca.SX.sym("U", nu, blocking.n_moves if blocking else T)
+        U = ca.mtimes(Uv, ca.DM(blocking.matrix().T)) if blocking else Uv
         x0, target = ca.SX.sym("x0", nx), ca.SX.sym("target", nx, T + 1)
         u_prev = ca.SX.sym("u_prev", nu)
         ctx = TermContext(x0=x0, target=target, u_prev=u_prev, goal=target[:, -1],
@@ -167,19 +175,21 @@ class Scorer:
                   guesses: dict[str, np.ndarray], held: bool = False) -> dict[str, Any]:
         """The best converged IPOPT solution from a zero-input rollout and from each guess
         (a backend's input sequence, by name); ``start`` names the start that won."""
-        p, T = self.plant, self.T
+        p, T, b = self.plant, self.T, self.blocking
         solver = self._ocp[held]
         ng = int(solver.size_in("lbg")[0])
+        M = b.n_moves if held else T
         lbx = np.concatenate([np.full(p.nx, -np.inf), np.tile(p.x_lb, T)]
-                             + [np.tile(p.u_lb, 1 if held else T)])
+                             + [np.tile(p.u_lb, M)])
         ubx = np.concatenate([np.full(p.nx, np.inf), np.tile(p.x_ub, T)]
-                             + [np.tile(p.u_ub, 1 if held else T)])
+                             + [np.tile(p.u_ub, M)])
         best: dict[str, Any] | None = None
         starts = {"zero": np.tile(p.clip_input(np.zeros(p.nu)), (T, 1))} | guesses
         for i, U in starts.items():
-            U = p.clip_input(np.tile(U[:1], (T, 1)) if held else U)
+            V = p.clip_input(U[list(b.starts)] if held else U)  # each block's first input
+            U = b.expand(V) if held else V
             X = p.rollout(x0, U, self.dt)
-            w0 = np.concatenate([X.ravel(), (U[:1] if held else U).ravel()])
+            w0 = np.concatenate([X.ravel(), V.ravel()])
             sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=np.zeros(ng), ubg=np.zeros(ng),
                          p=np.concatenate([x0, target.ravel(), u_prev]))
             stats = solver.stats()
@@ -187,7 +197,7 @@ class Scorer:
                 continue
             w = np.asarray(sol["x"]).ravel()
             Ur = w[p.nx * (T + 1):].reshape(-1, p.nu)
-            Ur = np.tile(Ur, (T, 1)) if held else Ur
+            Ur = b.expand(Ur) if held else Ur
             J, viol = self.true_cost(x0, Ur, target, u_prev)
             if best is None or J < best["cost"] - 1e-8 * abs(J):  # a better local optimum
                 best = {"cost": J, "u_pred": Ur, "viol": viol, "start": i,
@@ -208,31 +218,38 @@ def sample_states(case: Case, scenario: str, dt: float,
 
 
 def compare(case: Case, dt: float | None = None, samples: dict[str, list[int]] | None = None,
-            backends: list[str] | None = None, warm: bool = False) -> pd.DataFrame:
+            backends: list[str] | None = None, warm: bool = False,
+            control_horizon: str | None = None) -> pd.DataFrame:
     """One row per (scenario, state, backend): the measures in the module docstring.
 
     ``samples`` (scenario -> closed-loop steps) and ``backends`` restrict the case. ``warm``:
     each backend runs its own closed loop (warm-started from its previous plan, as in a
     run) and is scored at its own states at those steps; otherwise every backend is reset
-    and solves cold at the states of one sampling closed loop.
+    and solves cold at the states of one sampling closed loop. ``control_horizon`` (as on
+    the command line: ``3``, ``[1,2,7]``) blocks every backend, and the held-input
+    reference, so.
     """
     dt = case.dt if dt is None else dt
     rows: list[dict[str, Any]] = []
     samples = case.samples if samples is None else samples
+    blocked = [] if control_horizon is None else [f"controller.control_horizon={control_horizon}"]
     for scenario in samples:
-        runs = {b: build_run(compose(_fill(o, scenario, dt)))
+        runs = {b: build_run(compose(_fill([*o, *blocked], scenario, dt)))
                 for b, o in case.backends.items() if backends is None or b in backends}
         ctrls = {b: r.controller for b, r in runs.items()}
         T = {c.horizon for c in ctrls.values()}
         dts = {c.dt for c in ctrls.values()}
         if len(T) != 1 or len(dts) != 1:
             raise ValueError(f"backends disagree on horizon {T} or dt {dts}: not the same OCP")
-        ref_cfg = compose(_fill(case.backends["casadi"], scenario, dt))
+        ref_cfg = compose(_fill([*case.backends["casadi"], *blocked], scenario, dt))
         first = next(iter(runs.values()))
-        scorer = Scorer(first.plant, build(ref_cfg.objective, "objective"), T.pop(), dts.pop(),
-                        dict(ref_cfg.controller.get("terminal_constraint") or {}))
+        horizon = T.pop()
+        blocking = (Blocking.of(ref_cfg.controller.control_horizon, horizon) if blocked
+                    else None)
+        scorer = Scorer(first.plant, build(ref_cfg.objective, "objective"), horizon, dts.pop(),
+                        dict(ref_cfg.controller.get("terminal_constraint") or {}), blocking)
         scen = first.scenario
-        score = _Scoring(scorer, scenario, bool(case.held))
+        score = _Scoring(scorer, scenario, bool(case.held or blocked))
         if warm:
             for b, run in runs.items():
                 rows += _own_loop(score, b, run, scorer, samples[scenario])
@@ -342,15 +359,20 @@ def main() -> None:
     ap.add_argument("--csv", type=Path, default=None, help="write the per-state rows here")
     ap.add_argument("--warm", action="store_true",
                     help="each backend in its own closed loop, warm-started (default: cold)")
+    ap.add_argument("--control-horizon", default=None,
+                    help="block every backend so (3, [1,2,7]); the held reference likewise")
     args = ap.parse_args()
     pd.set_option("display.width", 200)
     pd.set_option("display.max_columns", 20)
     frames = []
     for name in args.case or list(CASES):
-        df = compare(CASES[name], args.dt, warm=args.warm)
+        df = compare(CASES[name], args.dt, warm=args.warm,
+                     control_horizon=args.control_horizon)
         df.insert(0, "case", name)
         frames.append(df)
         mode = "warm, own closed loop" if args.warm else "cold"
+        if args.control_horizon:
+            mode += f", control horizon {args.control_horizon}"
         print(f"\n## {name}  (dt = {args.dt or CASES[name].dt}, {mode})\n")
         cols = [c for c in ("scenario", "t", "backend", "status", "true_cost", "gap",
                             "gap_held", "du0", "viol", "pred_err") if c in df]
@@ -359,6 +381,7 @@ def main() -> None:
         print(summarize(df).to_string(float_format=lambda v: f"{v:.3g}"))
     if args.csv:
         pd.concat(frames).to_csv(args.csv, index=False)
+    print(f"\n{stamp()}")
 
 
 if __name__ == "__main__":

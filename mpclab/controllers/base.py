@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from mpclab.controllers.blocking import Blocking
 from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.status import USABLE, Problem, SolveStatus
@@ -140,6 +141,9 @@ class Controller(ABC):
     min_horizon: int = 1
     #: a filter of the applied input (:mod:`mpclab.controllers.safety_filter`), or None
     safety_filter: Any = None
+    #: the blocks of the plan's moves (:mod:`mpclab.controllers.blocking`), recorded in the
+    #: summary; None for a backend without a control horizon
+    blocking: Blocking | None = None
 
     def __init__(
         self, plant: Plant, horizon: int, dt: float, delay_compensation: bool = False,

@@ -12,6 +12,21 @@ soft one with its slack ``>= 0``, a variable of stage ``k`` placed after ``x_k``
 constraint; ``penalty * slack`` in the cost); a constraint coupling ``x_k`` and its successor
 (a barrier function) writes its rows at stage ``k = 0..T-1`` on ``x_k`` and
 ``F(x_k, u_k)``, so that they stay local to stage ``k``.
+
+Move blocking (the control horizon, :mod:`mpclab.controllers.blocking`): the NLP's input
+variables are the ``M`` free moves ``v_j``, each placed in the stage where its block starts.
+Single shooting, and multiple shooting for IPOPT, substitute ``u_k = v_{j(k)}``
+(``U = T V``). A stage-structured solver needs every cost and constraint local to a stage and
+its successor, which a move shared by the stages of its block is not: fatrop (and hpipm) read
+the stages off the NLP, and sqpmethod convexifies its Hessian block by block, where a shared
+move joins the stages of its block into one dense block (the car at ``control_horizon=3``:
+its eigenvalue decomposition ran out of iterations and most solves failed). For these
+(``stagewise``) the held input is a state: the lifted input before each step ``s_k``
+(``s_0 = u_prev``), with ``s_{k+1} = v_j`` at the start of block ``j`` and ``s_{k+1} = s_k``
+within it, where the step applies ``u_k = s_k``. A stage within a block then has no control
+at all, and the held-input states are fixed by the dynamics as the plant's states are (the
+same lifted states an input-rate term already needs). Equality constraints
+``u_k = u_{k-1}`` instead would keep all ``T nu`` inputs free in the decision vector.
 """
 
 from __future__ import annotations
@@ -25,6 +40,7 @@ import casadi as ca
 import numpy as np
 
 from mpclab.constraints.base import Constraint
+from mpclab.controllers.blocking import Blocking
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
 
@@ -84,7 +100,7 @@ class OCP:
     lbw: np.ndarray
     ubw: np.ndarray
     x_idx: np.ndarray | None   # (T+1, nx) indices of the states in w (multiple shooting)
-    u_idx: np.ndarray          # (T, nu) indices of the inputs in w
+    u_idx: np.ndarray          # (M, nu) indices of the free moves in w (M = T unblocked)
     s_idx: np.ndarray | None   # (T+1, nu) indices of the lifted inputs-before (or None)
     slack_idx: np.ndarray | None  # (T, n_soft) indices of the soft constraints' slacks
     slack_fn: ca.Function | None  # (w, p) -> the slacks' penalty (None without soft ones)
@@ -94,10 +110,15 @@ class OCP:
 def build_ocp(
     plant: Plant, objective: Objective, term_names: Sequence[str], horizon: int, dt: float,
     shooting: Shooting, max_detections: int, constraints: Sequence[Constraint],
-    terminal: Sequence[tuple[int, float]],
+    terminal: Sequence[tuple[int, float]], blocking: Blocking | None = None,
+    stagewise: bool = False,
 ) -> OCP:
-    """The MPC problem over ``horizon`` steps of ``plant.F`` with the (active) terms' cost."""
+    """The MPC problem over ``horizon`` steps of ``plant.F`` with the (active) terms' cost,
+    its inputs blocked by ``blocking`` (None: every move free); ``stagewise``: for a solver
+    that exploits the stage structure (module docstring)."""
     nx, nu, T, M = plant.nx, plant.nu, horizon, max(max_detections, 1)
+    blocking = blocking or Blocking.of(None, T)
+    move_of, starts = blocking.move_of.tolist(), set(blocking.starts)
     P = Params()
     x0 = P.add("x0", nx)
     goal = P.add("goal", nx)
@@ -111,15 +132,19 @@ def build_ocp(
     cpar = [c.declare(P, M) for c in constraints]  # each constraint's own parameters
     soft = [c for c in constraints if c.soft]
     Sl = {k: ca.SX.sym(f"slack{k}", len(soft)) for k in range(1, T + 1)} if soft else {}
-    Us = [ca.SX.sym(f"u{k}", nu) for k in range(T)]
+    Vs = [ca.SX.sym(f"u{j}", nu) for j in range(blocking.n_moves)]  # the free moves
     # a term coupling each input to the one before (an input rate) makes the NLP's Hessian
     # couple neighbouring stages, which a stage-structured solver cannot take: the input
     # before each step becomes a state of its own (s_0 = u_prev, s_{k+1} = u_k), the "lifted"
-    # form, and the term reads s_k. Decided over the whole objective, so that every NLP of
-    # one objective (one per active set) has the same variables
-    lift = shooting is Shooting.multiple and any(
-        t.uses_input_before for t in objective.terms.values())
+    # form, and the term reads s_k; it also holds a blocked input for such a solver. Decided
+    # over the whole objective, so that every NLP of one objective (one per active set) has
+    # the same variables
+    lift = shooting is Shooting.multiple and (
+        any(t.uses_input_before for t in objective.terms.values())
+        or (stagewise and not blocking.free))
     Ss = [ca.SX.sym(f"s{k}", nu) for k in range(T + 1)] if lift else []
+    # the input each step applies: its block's move, held as the state s_k when lifted
+    Us = [Vs[move_of[k]] if k in starts or not lift else Ss[k] for k in range(T)]
     ctx = TermContext(x0=x0, target=target, u_prev=u_prev, goal=goal, detections=det,
                       mask=mask, u_before=ca.horzcat(*Ss[:T]) if lift else None,
                       follow=follow)
@@ -174,7 +199,8 @@ def build_ocp(
                 add(ca.vertcat(Xs[0] - x0, *([Ss[0] - u_prev] if lift else [])), 0.0, 0.0)
             if k < T:  # a stage's gap-closing constraint, then its path constraints (the
                 # order fatrop's structure detection takes)
-                var("u", k, Us[k], plant.u_lb, plant.u_ub)
+                if k in starts:
+                    var("u", move_of[k], Vs[move_of[k]], plant.u_lb, plant.u_ub)
                 nxt = plant.F(Xs[k], Us[k], dt)
                 gap = [Xs[k + 1] - nxt]
                 add(ca.vertcat(*gap, *([Ss[k + 1] - Us[k]] if lift else [])), 0.0, 0.0)
@@ -188,7 +214,8 @@ def build_ocp(
     else:
         Xs = [x0]
         for k in range(T):
-            var("u", k, Us[k], plant.u_lb, plant.u_ub)
+            if k in starts:
+                var("u", move_of[k], Vs[move_of[k]], plant.u_lb, plant.u_ub)
             if soft:
                 var("slack", k + 1, Sl[k + 1], 0.0, np.inf)
             Xs.append(plant.F(Xs[-1], Us[k], dt))
@@ -196,7 +223,7 @@ def build_ocp(
             rows(k + 1, None, Xs[k + 1], coupled=False)
             rows(k, Xs[k], Xs[k + 1], coupled=True)
         x_idx, s_idx = None, None
-    u_idx = np.array([where["u", k] for k in range(T)])
+    u_idx = np.array([where["u", j] for j in range(blocking.n_moves)])
     slack_idx = np.array([where["slack", k] for k in range(1, T + 1)]) if soft else None
     X, U = ca.horzcat(*Xs), ca.horzcat(*Us)
     for i, value in terminal:

@@ -32,6 +32,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
+from mpclab.controllers.blocking import Blocking, ControlHorizon
 from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, QPSolution, SolveVia
 from mpclab.controllers.cvxpy_sl import MAX_RADIUS, Hessian, Point, TrustRegionSL
 from mpclab.errors import ConfigError, parse_choice
@@ -78,6 +79,10 @@ class CvxpyMPC(Controller):
         the true cost of a rollout is evaluated with the terms' CasADi form).
     horizon, dt
         Prediction steps and sample time [s].
+    control_horizon
+        The free moves: null (all), an integer ``Nc`` (the last held to the end) or a list
+        of block lengths (:mod:`mpclab.controllers.blocking`). The QP's input variable is
+        the moves ``V (nu, M)``; the inputs ``U = V S`` (``S`` the blocking, constant).
     solver
         ``CLARABEL`` (default) or ``OSQP``.
     warm_start
@@ -121,6 +126,7 @@ class CvxpyMPC(Controller):
         objective: Objective,
         horizon: int = 10,
         dt: float = 0.1,
+        control_horizon: ControlHorizon = None,
         solver: CvxpySolver | str = CvxpySolver.CLARABEL,
         warm_start: bool = True,
         sl: SlMode | str = SlMode.converge,
@@ -136,6 +142,7 @@ class CvxpyMPC(Controller):
         delay_compensation: bool = False,
     ) -> None:
         super().__init__(plant, horizon, dt, delay_compensation)
+        self.blocking = Blocking.of(control_horizon, self.horizon)
         self.solver = parse_choice(CvxpySolver, solver, "controller.solver").value
         self.warm_start = bool(warm_start)
         self.sl = parse_choice(SlMode, sl, "controller.sl")
@@ -166,22 +173,23 @@ class CvxpyMPC(Controller):
         if not self._terms_qp:
             self._check_compile_size()
         self._build()
-        self.qp = CompiledQP(self.problem, [self.X, self.U], self.solver, self.solver_options,
+        self.qp = CompiledQP(self.problem, [self.X, self.V], self.solver, self.solver_options,
                              self.warm_start, solve_via)
         self.iteration = None if self.sl is SlMode.one_pass else TrustRegionSL(
-            plant, objective, self.horizon, self.dt, self._terminal, self.hessian, self.tol,
+            plant, objective, self.blocking, self.dt, self._terminal, self.hessian, self.tol,
             self.max_iterations, self.trust_radius, self._u_lo, self._u_hi,
         )
 
     def _check_compile_size(self) -> None:
         """Refuse, or announce, an exact-Hessian QP too large to compile in reasonable time.
 
-        Its objective has an ``(n, n)`` Hessian parameter (``n = nu * horizon``); CVXPY's
+        Its objective has an ``(n, n)`` Hessian parameter (``n = nu M``, ``M`` free moves,
+        the horizon unblocked); CVXPY's
         compile makes a dense ``(n + 1, n^2)`` tensor of it (``toarray`` in its quadratic
         coefficient extraction), and several copies: 3.8 GB resident and still building after
         3 minutes at horizon 200 (0.5 GB dense), on the car.
         """
-        n = self.plant.nu * self.horizon
+        n = self.plant.nu * self.blocking.n_moves
         dense = 8.0 * (n + 1) * n * n
         try:
             memory = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
@@ -199,39 +207,41 @@ class CvxpyMPC(Controller):
                         what, fixes)
 
     def _build(self) -> None:
-        nx, nu, T = self.plant.nx, self.plant.nu, self.horizon
+        nx, nu, T, M = self.plant.nx, self.plant.nu, self.horizon, self.blocking.n_moves
         self.X = X = cp.Variable((nx, T + 1), name="X")
-        self.U = U = cp.Variable((nu, T), name="U")
+        #: the free moves; the inputs are ``U = V S`` (held within each block)
+        self.V = V = cp.Variable((nu, M), name="V")
+        U = V if self.blocking.free else V @ self.blocking.matrix().T
         self.p_x0 = cp.Parameter(nx, name="x0")
         # the whole LTV model in one parameter, columns [A_0..A_T-1 | B_0..B_T-1 | c_0..c_T-1]:
         # one value update per linearization instead of 2T+1
-        self.p_model = M = cp.Parameter((nx, T * (nx + nu + 1)), name="model")
+        self.p_model = model = cp.Parameter((nx, T * (nx + nu + 1)), name="model")
         a0, c0 = T * nx, T * (nx + nu)
         self.p_target = cp.Parameter((nx, T + 1), name="target")
-        # input bounds, intersected with the trust region around Ubar in `converge`
-        self.p_u_lo = cp.Parameter((nu, T), name="u_lo")
-        self.p_u_hi = cp.Parameter((nu, T), name="u_hi")
+        # bounds of the moves, intersected with the trust region around Vbar in `converge`
+        self.p_u_lo = cp.Parameter((nu, M), name="u_lo")
+        self.p_u_hi = cp.Parameter((nu, M), name="u_hi")
         cons = [X[:, 0] == self.p_x0]
         cons += [
             X[:, k + 1]
-            == M[:, k * nx : (k + 1) * nx] @ X[:, k]
-            + M[:, a0 + k * nu : a0 + (k + 1) * nu] @ U[:, k]
-            + M[:, c0 + k]
+            == model[:, k * nx : (k + 1) * nx] @ X[:, k]
+            + model[:, a0 + k * nu : a0 + (k + 1) * nu] @ U[:, k]
+            + model[:, c0 + k]
             for k in range(T)
         ]
-        cons += [U >= self.p_u_lo, U <= self.p_u_hi]
+        cons += [V >= self.p_u_lo, V <= self.p_u_hi]
         cons += _box(X[:, 1:], self.plant.x_lb, self.plant.x_ub)
         cons += [X[i, T] == value for i, value in self._terminal]
         self.p_u_prev = cp.Parameter(nu, name="u_prev")
         if self._terms_qp:
             ctx = TermContext(x0=self.p_x0, target=self.p_target, u_prev=self.p_u_prev)
             cost = sum(term.cvxpy_cost(X, U, ctx) for term in self.objective)
-        else:  # g'u + |L u - L ubar|^2 / 2: the model up to a constant (L'L: clipped Hessian)
-            n = nu * T
+        else:  # g'v + |L v - L vbar|^2 / 2: the model up to a constant (L'L: clipped Hessian)
+            n = nu * M
             self.p_grad = cp.Parameter(n, name="grad")
             self.p_L = cp.Parameter((n, n), name="L")
             self.p_Lu = cp.Parameter(n, name="L_ubar")
-            u = cp.vec(U, order="F")
+            u = cp.vec(V, order="F")
             cost = self.p_grad @ u + 0.5 * cp.sum_squares(self.p_L @ u - self.p_Lu)
         self.problem = cp.Problem(cp.Minimize(cost), cons)
         if not self.problem.is_dpp():
@@ -256,12 +266,12 @@ class CvxpyMPC(Controller):
         self.qp.reset()
 
     def _guess(self) -> FloatArray:
-        """The first linearization inputs ``(T, nu)``: the previous plan shifted, or
-        ``initial_input`` held."""
+        """The first linearization moves ``(M, nu)``: the previous plan shifted and
+        re-blocked, or ``initial_input`` held."""
         prev = self.previous_plan
         if prev is None:
-            return np.tile(self._u_guess, (self.horizon, 1))
-        return shift(prev.u_pred)
+            return np.tile(self._u_guess, (self.blocking.n_moves, 1))
+        return self.blocking.shift(prev.u_pred)
 
     def _set_model(self, A: FloatArray, B: FloatArray, c: FloatArray) -> None:
         nx = self.plant.nx
@@ -281,7 +291,7 @@ class CvxpyMPC(Controller):
     # ------------------------------------------------------------------ one pass
     def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``one_pass``: the states and inputs ``(T, nx)``, ``(T, nu)`` linearized about."""
-        Ubar = self._guess()
+        Ubar = self.blocking.expand(self._guess())
         if self.previous_plan is None or self.linearize_about is Linearization.rollout:
             return self.plant.rollout(x, Ubar, self.dt)[:-1], Ubar
         Xbar = shift(self.previous_plan.x_pred)[:-1].copy()
@@ -291,13 +301,13 @@ class CvxpyMPC(Controller):
     def _one_pass(self, x: FloatArray) -> ControlStep:
         Xbar, Ubar = self._linearization_points(x)
         self._set_model(*self.plant.linearize_trajectory(Xbar, Ubar, self.dt))
-        T = self.horizon
-        _assign(self.p_u_lo, np.tile(self._u_lo[:, None], (1, T)))
-        _assign(self.p_u_hi, np.tile(self._u_hi[:, None], (1, T)))
+        M = self.blocking.n_moves
+        _assign(self.p_u_lo, np.tile(self._u_lo[:, None], (1, M)))
+        _assign(self.p_u_hi, np.tile(self._u_hi[:, None], (1, M)))
         sol = self.qp.solve()
         if sol.values is None:
             return self._failed(sol.status, x, sol.raw, sol.message, sol.iterations)
-        Xv, Uv = sol.values
+        Xv, Uv = sol.values[0], self.blocking.expand(sol.values[1].T).T
         # one linearize-and-solve pass: the QP converged, the linearization was not iterated
         return ControlStep(
             u=Uv[:, 0].copy(), x_pred=Xv.T.copy(), u_pred=Uv.T.copy(),
@@ -313,8 +323,9 @@ class CvxpyMPC(Controller):
             sol = out.failure
             return self._failed(sol.status, x, sol.raw, sol.message, out.iterations)
         pt = out.point
+        U = self.blocking.expand(pt.U)
         return ControlStep(
-            u=pt.U[0].copy(), x_pred=pt.X, u_pred=pt.U.copy(), status=out.status,
+            u=U[0].copy(), x_pred=pt.X, u_pred=U, status=out.status,
             cost=pt.cost, solver_status=out.raw, iterations=out.iterations,
             info={"qp_iterations": out.qp_iterations, "trust_radius": out.radius},
         )
@@ -331,7 +342,7 @@ class CvxpyMPC(Controller):
         return {"sl": self.sl.value}
 
     def _trust_region_qp(self, bar: Point, r: float) -> QPSolution:
-        """The QP linearized about ``bar`` with ``|U - bar.U| <= r`` (in half input ranges)."""
+        """The QP linearized about ``bar`` with ``|V - bar.U| <= r`` (in half input ranges)."""
         _assign(self.p_model, bar.model)
         if bar.grad is not None:
             _assign(self.p_grad, bar.grad)

@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from mpclab.controllers.base import FloatArray, SolveStatus
+from mpclab.controllers.blocking import Blocking
 from mpclab.controllers.cvxpy_direct import QPSolution
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
@@ -51,10 +52,11 @@ class Hessian(StrEnum):
 
 
 class Point(NamedTuple):
-    """Inputs ``(T, nu)``, their rollout ``(T+1, nx)``, its true cost, merit and
-    feasibility; where a QP is linearized: the LTV model (laid out as the backend's ``model``
-    parameter) and, with the exact Hessian, the cost's gradient in ``vec(U)``, ``L`` with
-    ``L'L`` the clipped Hessian, and a direction of negative curvature (or None)."""
+    """The free moves ``U (M, nu)`` (the inputs under a control horizon, ``M = T``
+    unblocked), their rollout ``(T+1, nx)``, its true cost, merit and feasibility; where a QP
+    is linearized: the LTV model (laid out as the backend's ``model`` parameter) and, with
+    the exact Hessian, the cost's gradient in ``vec(U)``, ``L`` with ``L'L`` the clipped
+    Hessian, and a direction of negative curvature (or None)."""
 
     U: FloatArray
     X: FloatArray
@@ -89,8 +91,10 @@ class TrustRegionSL:
 
     Parameters
     ----------
-    plant, objective, horizon, dt
+    plant, objective, dt
         As the backend's; every term needs a CasADi form (the true cost).
+    blocking
+        The horizon's blocks: the iteration is over the free moves.
     terminal
         ``(state index, value)`` rows of the terminal constraint.
     hessian, tol, max_iterations, trust_radius
@@ -100,11 +104,12 @@ class TrustRegionSL:
     """
 
     def __init__(
-        self, plant: Plant, objective: Objective, horizon: int, dt: float,
+        self, plant: Plant, objective: Objective, blocking: Blocking, dt: float,
         terminal: list[tuple[int, float]], hessian: Hessian, tol: float, max_iterations: int,
         trust_radius: float, u_lo: FloatArray, u_hi: FloatArray,
     ) -> None:
-        self.plant, self.horizon, self.dt, self.terminal = plant, horizon, dt, terminal
+        self.plant, self.dt, self.terminal = plant, dt, terminal
+        self.blocking, self.horizon = blocking, blocking.horizon
         self.exact = hessian is Hessian.exact
         self.tol, self.max_iterations, self.trust_radius = tol, max_iterations, trust_radius
         self.u_lo, self.u_hi = u_lo, u_hi
@@ -114,11 +119,13 @@ class TrustRegionSL:
         self._cost_fn, self._model_fn = self._build(objective)
 
     def _build(self, objective: Objective) -> tuple[ca.Function, ca.Function]:
-        """Two CasADi functions of ``(x0, U, target, u_prev)``: ``(X, cost)``, the rollout and
-        its true cost (the terms' CasADi form), for every candidate; and ``(model[, grad,
-        hess])``, only where the next QP is linearized."""
+        """Two CasADi functions of ``(x0, V, target, u_prev)`` (``V (nu, M)`` the moves):
+        ``(X, cost)``, the rollout and its true cost (the terms' CasADi form), for every
+        candidate; and ``(model[, grad, hess])``, only where the next QP is linearized (the
+        derivatives in ``vec(V)``)."""
         p, T, dt = self.plant, self.horizon, self.dt
-        x0, U = ca.SX.sym("x0", p.nx), ca.SX.sym("U", p.nu, T)
+        x0, V = ca.SX.sym("x0", p.nx), ca.SX.sym("V", p.nu, self.blocking.n_moves)
+        U = V if self.blocking.free else ca.mtimes(V, ca.DM(self.blocking.matrix().T))
         target, u_prev = ca.SX.sym("target", p.nx, T + 1), ca.SX.sym("u_prev", p.nu)
         cols = [x0]
         for k in range(T):
@@ -129,16 +136,17 @@ class TrustRegionSL:
         lin = [p.F_lin(X[:, k], U[:, k], dt) for k in range(T)]
         out = [ca.horzcat(*[m[0] for m in lin], *[m[1] for m in lin], *[m[2] for m in lin])]
         if self.exact:
-            hess, grad = ca.hessian(cost, ca.vec(U))
+            hess, grad = ca.hessian(cost, ca.vec(V))
             out += [grad, hess]
-        args, opts = [x0, U, target, u_prev], {"cse": True}  # CSE: 20 % fewer instructions
+        args, opts = [x0, V, target, u_prev], {"cse": True}  # CSE: 20 % fewer instructions
         return (ca.Function("sl_cost", args, [X, cost], opts),
                 ca.Function("sl_model", args, out, opts))
 
     # ------------------------------------------------------------------ points
     def point(self, x: FloatArray, U: FloatArray, target: FloatArray,
               u_prev: FloatArray) -> Point:
-        """``U`` rolled out from ``x``, with its true cost and merit (no model yet)."""
+        """The moves ``U (M, nu)`` rolled out from ``x``, with its true cost and merit (no
+        model yet)."""
         X, cost = self._cost_fn(x, U.T, target, u_prev)
         X = np.asarray(X, dtype=float).T
         viol = self.violation(X)
@@ -158,7 +166,7 @@ class TrustRegionSL:
         L = np.sqrt(np.maximum(lam, floor))[:, None] * V.T
         descent = None
         if lam[0] < -floor:
-            descent = V[:, 0].reshape(self.horizon, self.plant.nu) / self.scale
+            descent = V[:, 0].reshape(self.blocking.n_moves, self.plant.nu) / self.scale
             descent /= np.max(np.abs(descent))
         grad = np.asarray(out[1], dtype=float).ravel()
         return pt._replace(model=model, grad=grad, L=L, descent=descent)
@@ -196,7 +204,7 @@ class TrustRegionSL:
     # ------------------------------------------------------------------ iteration
     def run(self, x: FloatArray, U0: FloatArray, target: FloatArray, u_prev: FloatArray,
             solve: QPStep) -> Outcome:
-        """Iterate from the inputs ``U0``; ``target`` is ``(nx, T+1)``."""
+        """Iterate from the moves ``U0 (M, nu)``; ``target`` is ``(nx, T+1)``."""
         bar = self.point(x, U0, target, u_prev)
         radius, qp_iters, raw = self.trust_radius, 0, ""
         it = 0

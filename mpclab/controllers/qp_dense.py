@@ -1,8 +1,8 @@
 """Condensed (dense) linear MPC: prediction matrices, the QP they give, and its solvers.
 
 An affine model ``x[k+1] = A x[k] + B u[k] + c`` held over ``T`` steps, with the inputs
-move-blocked into ``M`` free moves ``U`` (the first ``M-1`` moves last one step each, the last
-one is held to the end of the horizon, as MATLAB's control horizon), predicts
+move-blocked into ``M`` free moves ``U`` (:mod:`mpclab.controllers.blocking`: the control
+horizon or a list of blocks), predicts
 
     X = Px x0 + Pu U + pc            X = (x[0], ..., x[T]) stacked, ((T+1) nx,)
 
@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
+from mpclab.controllers.blocking import Blocking
 from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, QPSolution, SolveVia
 from mpclab.lazy import lazy_import
 
@@ -33,25 +34,13 @@ cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use i
 FloatArray = npt.NDArray[np.float64]
 
 
-def blocking_matrix(horizon: int, control_horizon: int, nu: int) -> FloatArray:
-    """``E (T nu, M nu)`` mapping the ``M`` free moves to the ``T`` inputs of the horizon."""
-    T, M = int(horizon), int(control_horizon)
-    if not 1 <= M <= T:
-        raise ValueError(f"control_horizon must be in 1..horizon={T}, got {control_horizon}")
-    E = np.zeros((T * nu, M * nu))
-    for k in range(T):
-        j = min(k, M - 1)
-        E[k * nu : (k + 1) * nu, j * nu : (j + 1) * nu] = np.eye(nu)
-    return E
-
-
-def condenser(nx: int, nu: int, horizon: int, control_horizon: int) -> ca.Function:
+def condenser(nx: int, nu: int, blocking: Blocking) -> ca.Function:
     """A compiled CasADi function ``(A, B, c) -> (Px, Pu, pc)`` for a held affine model."""
     A = ca.SX.sym("A", nx, nx)
     B = ca.SX.sym("B", nx, nu)
     c = ca.SX.sym("c", nx)
-    E = blocking_matrix(horizon, control_horizon, nu)
-    M = control_horizon
+    E = blocking.matrix(nu)
+    horizon, M = blocking.horizon, blocking.n_moves
     Xk, Uk, ck = ca.SX.eye(nx), ca.SX.zeros(nx, M * nu), ca.SX.zeros(nx, 1)
     Px, Pu, pc = [Xk], [Uk], [ck]
     for k in range(horizon):
@@ -75,15 +64,15 @@ class TrackingQP:
         Diagonal state weights ``(nx,)`` on steps ``1..T`` and added on step ``T``.
     input_w
         Diagonal input weights ``(nu,)`` on steps ``0..T-1``.
-    horizon, control_horizon
-        ``T`` and ``M``.
+    blocking
+        The ``T`` steps' blocks into ``M`` free moves.
     """
 
     def __init__(
         self, state_w: FloatArray, terminal_w: FloatArray, input_w: FloatArray,
-        horizon: int, control_horizon: int,
+        blocking: Blocking,
     ) -> None:
-        nx, nu, T = state_w.size, input_w.size, int(horizon)
+        nx, nu, T = state_w.size, input_w.size, blocking.horizon
         w = np.tile(state_w, (T + 1, 1))
         w[0] = 0.0
         w[T] += terminal_w
@@ -91,7 +80,7 @@ class TrackingQP:
         self.w = w.ravel()
         #: rows of the stacked prediction that carry weight
         self.rows = np.flatnonzero(self.w)
-        E = blocking_matrix(T, control_horizon, nu)
+        E = blocking.matrix(nu)
         #: ``E' R E``: the input weights over the blocked moves
         self.R = E.T @ (np.tile(input_w, T)[:, None] * E)
         self.E = E

@@ -43,11 +43,11 @@ from mpclab.controllers.base import (
     SolveStatus,
     StepContext,
 )
+from mpclab.controllers.blocking import Blocking, ControlHorizon
 from mpclab.controllers.cvxpy_direct import SolveVia
 from mpclab.controllers.qp_dense import (
     CvxpyBoxQP,
     TrackingQP,
-    blocking_matrix,
     box_qp_2,
     box_qp_active_set,
     condenser,
@@ -94,8 +94,11 @@ class ScheduledMPC(Controller):
         summed into one diagonal state, terminal and input weight).
     mode
         ``switched``, ``interpolated`` or ``adaptive``.
-    horizon, control_horizon
-        Prediction steps ``T`` and free moves ``M`` (the last move is held to the end).
+    horizon
+        Prediction steps ``T``.
+    control_horizon
+        The free moves: an integer ``M`` (the last held to the end), a list of block lengths
+        or null (every move free); :mod:`mpclab.controllers.blocking`.
     dt
         Sample time [s]; the models are the plant's step over ``dt``.
     operating_points
@@ -129,7 +132,7 @@ class ScheduledMPC(Controller):
         objective: Objective,
         mode: ScheduleMode | str = ScheduleMode.switched,
         horizon: int = 32,
-        control_horizon: int = 1,
+        control_horizon: ControlHorizon = 1,
         dt: float = 0.02,
         operating_points: Mapping[str, Sequence[float]] = OPERATING_POINTS,
         nominal_state: Mapping[str, float] | None = None,
@@ -145,23 +148,20 @@ class ScheduledMPC(Controller):
         self.solver = parse_choice(ScheduledQpSolver, solver, "controller.solver")
         T, nx, nu = self.horizon, plant.nx, plant.nu
         self._nx, self._nu = nx, nu
-        if not 1 <= int(control_horizon) <= T:
-            raise ConfigError(
-                f"controller.control_horizon must be in 1..{T}, got {control_horizon}"
-            )
-        self.control_horizon = M = int(control_horizon)
+        self.blocking = Blocking.of(control_horizon, T)
+        self.control_horizon = M = self.blocking.n_moves
         self.nz = nz = M * nu
         if self.solver is ScheduledQpSolver.closed_form and nz != 2:
             raise ConfigError(
                 f"controller.solver=closed_form needs 2 free variables (2 inputs, control "
                 f"horizon 1); this problem has {nz}: use auto or active_set"
             )
-        self.qp = TrackingQP(*_weights(objective, plant), T, M)
+        self.qp = TrackingQP(*_weights(objective, plant), self.blocking)
         self.lb = np.tile(plant.u_lb, M)
         self.ub = np.tile(plant.u_ub, M)
         self._bounds = tuple(float(v) for pair in zip(self.lb, self.ub, strict=True) for v in pair)
-        self._E = blocking_matrix(T, M, nu)
-        self._condense = condenser(nx, nu, T, M)
+        self._E = self.blocking.matrix(nu)
+        self._condense = condenser(nx, nu, self.blocking)
         self.grid = OperatingGrid(
             operating_points or OPERATING_POINTS, plant.state_index,
             plant.heading, hysteresis,
@@ -357,7 +357,7 @@ class ScheduledMPC(Controller):
         """What a ``converged`` step solved exactly: the QP of the model linearized at the
         current state (``adaptive``) or of operating points' fixed models (``switched``,
         ``interpolated``); never the nonlinear OCP, and with the input held over the
-        horizon beyond ``control_horizon``."""
+        horizon as ``control_horizon`` blocks it."""
         if self.mode is ScheduleMode.adaptive:
             return Problem.linearized
         return Problem.scheduled_linear
@@ -369,7 +369,6 @@ class ScheduledMPC(Controller):
         ops = pd.to_numeric(calls["op"], errors="coerce").to_numpy(dtype=float)
         U = calls[list(self.plant.inputs)].to_numpy(dtype=float)
         out: dict[str, Any] = {
-            "control_horizon": self.control_horizon,
             "schedule_mode": self.mode.value, "n_operating_points": len(self.grid),
             "codegen": self.codegen,
         }

@@ -144,11 +144,17 @@ class SweepCallback(Callback):
         ``figures.enabled=false``).
     x
         Its x axis: ``step_ms`` or ``rtf`` (see :class:`mpclab.tables.XAxis`).
+    pareto
+        ``{objectives: [...]}``: also write the sweep's Pareto front (``pareto.csv``,
+        ``pareto.png`` even under ``figures.enabled=false``: :mod:`mpclab.sweeps.pareto`);
+        None: no front.
     """
 
-    def __init__(self, figure: bool = True, x: str = "step_ms") -> None:
+    def __init__(self, figure: bool = True, x: str = "step_ms",
+                 pareto: dict[str, Any] | None = None) -> None:
         self.figure = figure
         self.x = tables.XAxis(x)
+        self.pareto = pareto
         #: per sweep folder, in this process: the progress file followed, and its tally
         self._progress: dict[Path, tuple[stream.Tail, Counter[str]]] = {}
 
@@ -209,6 +215,12 @@ class SweepCallback(Callback):
         # figures.enabled=false turns off the sweep's figure too, not only the runs'
         figure = self.figure and OmegaConf.select(config, "figures.enabled", default=True)
         report = write_report([sweep_dir], sweep_dir, figure=bool(figure), x=self.x)
+        if self.pareto is not None and not report.runs.empty:
+            from mpclab.sweeps.pareto import write_pareto  # matplotlib, as the report
+
+            # the front's figure is what a sweep asking for a front is for: always drawn
+            _, files = write_pareto([sweep_dir], sweep_dir, self.pareto.get("objectives"))
+            report.files.update({f"pareto:{k}": v for k, v in files.items()})
         if meta is not None:  # when the jobs ended and how long the tables took (benchmarks)
             meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
             (state / SWEEP_FILE).write_text(json.dumps(meta))

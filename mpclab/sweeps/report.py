@@ -4,9 +4,10 @@
 aggregates every run record found below the given folders (one sweep, several sweeps, a whole
 ``outputs/``) into ``summary.parquet``, ``summary.csv``, ``summary.md``, ``groups.csv`` and
 ``arrival_vs_compute.png`` in ``--out`` (default: the first PATH), and for a sweep over a
-numeric ``sim.*`` level (noise, latency scale, mismatch) ``robustness_<level>.png``. The
-multirun callback does the same for each sweep folder when it ends, from the rows the jobs
-streamed.
+numeric ``sim.*`` level (noise, latency scale, mismatch) ``robustness_<level>.png``; with
+``--pareto`` also the Pareto front (``pareto.csv``, ``pareto.png``, ``pareto_points.csv``:
+:mod:`mpclab.sweeps.pareto`). The multirun callback does the same for each sweep folder when
+it ends, from the rows the jobs streamed.
 """
 
 from __future__ import annotations
@@ -19,10 +20,13 @@ from pathlib import Path
 import pandas as pd
 
 from mpclab import tables
-from mpclab.errors import exit_on_bad_input
+from mpclab.errors import ConfigError, exit_on_bad_input
+from mpclab.provenance import stamp
 from mpclab.sweeps.figure import plot_arrival_vs_compute
+from mpclab.sweeps.pareto import write_pareto
 from mpclab.sweeps.robustness import plot_robustness, robustness_levels
 from mpclab.tables import XAxis
+from mpclab.tables.pareto import ParetoObjective, front
 
 FIGURE = "arrival_vs_compute.png"
 
@@ -65,6 +69,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--x", choices=[a.value for a in XAxis], default=XAxis.STEP_MS.value,
                         help="figure x axis: compute per step (ms) or compute/simulated time")
     parser.add_argument("--no-figure", action="store_true", help="tables only")
+    parser.add_argument("--pareto", action="store_true",
+                        help="also the Pareto front: pareto.csv, pareto.png")
+    parser.add_argument("--objectives", default=None,
+                        help="the front's objectives, comma-separated (default: the sweep's "
+                             "config's, else arrival_s,step_p95_ms): "
+                             + ", ".join(o.value for o in ParetoObjective))
     args = parser.parse_args(argv)
     out = args.out or args.paths[0]
     for path in args.paths:
@@ -72,11 +82,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"no such folder: {path}")
     try:
         report = write_report(args.paths, out, figure=not args.no_figure, x=XAxis(args.x))
-    except OSError as exc:  # an --out that cannot be made or written, a folder not readable
+        if args.pareto and not report.runs.empty:
+            points, files = write_pareto(args.paths, out, args.objectives,
+                                         figure=not args.no_figure)
+            report.files.update({f"pareto:{k}": v for k, v in files.items()})
+    except (OSError, ConfigError) as exc:  # an --out that cannot be written, a bad objective
         exit_on_bad_input(parser, exc)
     if report.runs.empty:
         parser.error(f"no run records below {', '.join(map(str, args.paths))}")
     print(tables.markdown_table(report.groups))
+    if args.pareto:
+        shown = [c for c in ("overrides", "runs", *points.attrs["objectives"], "knee",
+                             "default") if c in points]
+        print(f"\n## Pareto front\n\n{tables.markdown_table(front(points)[shown])}")
+        print(f"\n{stamp()}")
     print(f"\n{len(report.runs)} runs -> " + ", ".join(str(p) for p in report.files.values()))
     return 0
 

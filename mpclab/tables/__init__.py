@@ -289,11 +289,17 @@ def _tidy(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def _backend(df: pd.DataFrame, params: list[str]) -> pd.Series:
-    """The controller, with its solver when a sweep varies ``controller.solver``."""
+    """The controller, with its solver when a sweep varies ``controller.solver``, or when
+    the solver its summary records varies among runs of one controller (a sweep over
+    ``controller=casadi_fatrop,casadi``)."""
     backend = df["controller"].fillna("?").astype(str)
     if "controller.solver" in params and df["controller.solver"].nunique() > 1:
         solver = df["controller.solver"].fillna("").astype(str)
         backend = backend.where(solver == "", backend + ":" + solver)
+    elif "solver" in df:
+        solver = df["solver"].fillna("").astype(str)
+        varies = solver.groupby(backend).transform("nunique") > 1
+        backend = backend.where(~varies | (solver == ""), backend + ":" + solver)
     return backend
 
 

@@ -1,0 +1,180 @@
+"""A sweep's Pareto front as files: ``pareto.csv``, ``pareto.png`` and ``pareto_points.csv``.
+
+``pareto.csv`` holds the front's points (each with its override list, its seeds' outcomes
+and each objective's spread over the seeds), ``pareto_points.csv`` every point, and
+``pareto.png`` draws them: every feasible point grey, the excluded ones as crosses, the front
+joined and labelled, the shipped default marked, the knee ringed. The multirun callback
+writes them when a sweep whose config asks for a front ends (``hydra.callbacks.sweep.pareto``,
+the ``sweep=pareto_*`` configs); ``python -m mpclab.tables --pareto DIR`` writes them for any
+sweep folder. What a point, the front, the knee and the default are:
+:mod:`mpclab.tables.pareto`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from omegaconf import OmegaConf
+
+from mpclab import tables
+from mpclab.lazy import pyplot
+from mpclab.registry import COMPONENTS, register_all, target
+from mpclab.tables.pareto import (
+    LABELS,
+    ParetoObjective,
+    front,
+    override_value,
+    pareto_points,
+    parse_objectives,
+    point_keys,
+)
+
+FILES = {"front": "pareto.csv", "points": "pareto_points.csv", "figure": "pareto.png"}
+MULTIRUN = "multirun.yaml"
+
+
+def sweep_objectives(sweep_dir: Path) -> list[str] | None:
+    """The objectives the sweep's config names (``hydra.callbacks.sweep.pareto``), if any."""
+    cfg = _multirun(sweep_dir)
+    found = OmegaConf.select(cfg, "hydra.callbacks.sweep.pareto.objectives") if cfg else None
+    return list(found) if found is not None else None
+
+
+def shipped_default(sweep_dir: Path, keys: Sequence[str],
+                    backends: Sequence[str] = ()) -> dict[str, Any] | None:
+    """The values the sweep's base config gives the varied parameters ``keys`` (a group's
+    value is its choice; ``backend``: the base controller's name, with its solver where
+    ``backends``, the sweep's, name it so): Hydra's ``multirun.yaml`` is the config composed
+    without the swept values. None when the sweep folder has none."""
+    cfg = _multirun(sweep_dir)
+    if cfg is None or not keys:
+        return None
+    choices = OmegaConf.select(cfg, "hydra.runtime.choices") or {}
+    out = {}
+    for k in keys:
+        try:
+            out[k] = choices[k] if k in choices else OmegaConf.select(cfg, k, default=None)
+        except Exception:  # noqa: BLE001  (an interpolation that does not resolve here)
+            out[k] = None
+    if "backend" in keys:
+        out["backend"] = _base_backend(cfg, backends)
+    return out
+
+
+def _base_backend(cfg: Any, backends: Sequence[str]) -> str | None:
+    """The sweep's base controller as the tables name it (``casadi:fatrop``)."""
+    register_all()
+    wanted = OmegaConf.select(cfg, "controller._target_")
+    names = [n for n, cls in COMPONENTS.get("controller", {}).items() if target(cls) == wanted]
+    solver = OmegaConf.select(cfg, "controller.solver", default=None)
+    for name in names:
+        for candidate in (f"{name}:{solver}", name):
+            if candidate in backends:
+                return candidate
+    return None
+
+
+def write_pareto(
+    paths: Sequence[Path], out_dir: Path, objectives: Sequence[str] | str | None = None,
+    figure: bool = True,
+) -> tuple[pd.DataFrame, dict[str, Path]]:
+    """Collect the runs below ``paths``; write the front's files into ``out_dir``.
+
+    ``objectives``: names of :class:`~mpclab.tables.pareto.ParetoObjective` (default: the
+    sweep's config's, else arrival time and compute p95). Returns every point and the files.
+    """
+    out_dir = Path(out_dir)
+    df, step_ms = tables.collect_runs(paths, root=out_dir)
+    if df.empty:
+        return pd.DataFrame(), {}
+    chosen = parse_objectives(objectives or sweep_objectives(Path(paths[0])))
+    default = shipped_default(Path(paths[0]), point_keys(df), list(df["backend"].unique()))
+    points = pareto_points(df, chosen, step_ms, default)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {key: out_dir / name for key, name in FILES.items()}
+    front(points).to_csv(files["front"], index=False)
+    points.to_csv(files["points"], index=False)
+    if figure:
+        plot_pareto(points, files["figure"], title=_title(df))
+    else:
+        del files["figure"]
+    return points, files
+
+
+def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int = 110) -> Path:
+    """The first objective (y) against the second (x): every point, the front, its labels,
+    the default and the knee (module docstring)."""
+    plt = pyplot()
+    names = points.attrs["objectives"]
+    ycol, xcol = names[0], names[1]
+    keys = points.attrs["keys"]
+    fig, ax = plt.subplots(figsize=(8.0, 5.6))
+    ok = points[points["feasible"]]
+    bad = points[~points["feasible"] & points[xcol].notna() & points[ycol].notna()]
+    ax.scatter(ok[xcol], ok[ycol], color="0.7", s=28, zorder=2, label="feasible point")
+    if len(bad):
+        ax.scatter(bad[xcol], bad[ycol], color="0.8", marker="x", s=28, zorder=2,
+                   label="excluded (a seed failed to arrive or collided)")
+    on = front(points)
+    if len(on):
+        ax.errorbar(on[xcol], on[ycol], color="0.35", lw=0.8, capsize=2, zorder=3, alpha=0.4,
+                    xerr=_spread(on, xcol), yerr=_spread(on, ycol), fmt="none")
+        ax.plot(on[xcol], on[ycol], "-o", color="k", ms=5, zorder=4,
+                label="front (bars: spread over seeds)")
+        for i, (_, r) in enumerate(on.iterrows()):  # alternately above and below
+            ax.annotate(_label(r, keys), (r[xcol], r[ycol]), xytext=(6, 6 if i % 2 else -10),
+                        textcoords="offset points", fontsize=7)
+    for flag, style in (("knee", dict(s=220, facecolors="none", edgecolors="tab:red",
+                                      linewidths=2, label="knee")),
+                        ("default", dict(s=160, marker="*", color="tab:blue",
+                                         label="shipped default"))):
+        sel = points[points[flag]]
+        if len(sel):
+            ax.scatter(sel[xcol], sel[ycol], zorder=5, **style)
+    excluded = int((~points["feasible"]).sum())
+    ax.set_xlabel(LABELS[ParetoObjective(xcol)])
+    ax.set_ylabel(LABELS[ParetoObjective(ycol)])
+    ax.set_title(f"{title}: {len(on)} of {len(points)} points on the front"
+                 + (f", {excluded} excluded" if excluded else ""), fontsize=10)
+    xs = pd.to_numeric(points[xcol], errors="coerce").dropna()
+    if len(xs) and (xs > 0).all() and xs.max() > 20 * xs.min():  # decades apart
+        ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(plt.FuncFormatter(  # 2 and 5 of each decade, plainly
+            lambda v, _: f"{v:g}" if f"{v:g}"[0] in "25" else ""))
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return Path(path)
+
+
+def _spread(points: pd.DataFrame, col: str) -> np.ndarray:
+    """``(2, n)`` error bar lengths from a value to its seeds' min and max."""
+    lo = (points[col] - points[f"{col}_min"]).clip(lower=0).fillna(0)
+    hi = (points[f"{col}_max"] - points[col]).clip(lower=0).fillna(0)
+    return np.vstack([lo.to_numpy(dtype=float), hi.to_numpy(dtype=float)])
+
+
+def _label(row: pd.Series, keys: Sequence[str]) -> str:
+    """A point's parameters, each by the last part of its key (``horizon=10``)."""
+    return ", ".join(str(row[k]) if k == "backend" else
+                     f"{k.rsplit('.', 1)[-1]}={override_value(row[k])}" for k in keys)
+
+
+def _title(df: pd.DataFrame) -> str:
+    names = sorted(df["experiment"].dropna().astype(str).unique()) if "experiment" in df else []
+    return ", ".join(names) if 0 < len(names) <= 3 else "sweep"
+
+
+def _multirun(sweep_dir: Path) -> Any:
+    path = Path(sweep_dir) / MULTIRUN
+    try:
+        return OmegaConf.load(path) if path.is_file() else None
+    except Exception:  # noqa: BLE001  (an unreadable record: no objectives, no default)
+        return None
