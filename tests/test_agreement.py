@@ -131,11 +131,11 @@ def test_zumo_converged_nlp_backends_agree_with_the_reference(zumo_rows) -> None
     assert (nlp.status == "converged").all(), nlp
     # the harness scores the very NLP the backends solved: their own objective value is
     # the harness's cost of their plan, up to the solver's tolerance; with the soft obstacle
-    # constraint that is its constraint tolerance (1e-8 m a stage, 10 stages) times the L1
-    # penalty (1e6 per m): at most 0.1 in absolute terms, whatever the cost's scale (about
-    # 5e4 near the goal, tens while following a wall)
+    # constraint that is its constraint tolerance (up to 1e-7 m a stage, 10 stages) times the
+    # L1 penalty (1e6 per m): at most 1.0 in absolute terms, whatever the cost's scale (about
+    # 5e4 near the goal, tens while following a wall); measured up to 0.099
     scale = np.maximum(nlp.cost.abs(), 1.0)
-    assert (nlp.own_cost_err.abs() * scale < 1e6 * 1e-8 * 10 + 1e-5 * scale).all(), nlp
+    assert (nlp.own_cost_err.abs() * scale < 1e6 * 1e-7 * 10 + 1e-5 * scale).all(), nlp
     # at the states of its own run fatrop and IPOPT, warm started, may stop in a nearby
     # local optimum of this nonconvex NLP (0.26 % above the multi-start reference at one
     # wall-following state): a converged local solution, never a lower cost
