@@ -153,6 +153,7 @@ def run_job(
     same structure (:mod:`mpclab.warm`).
     """
     from mpclab.experiment import run_experiment
+    from mpclab.sim import RunInterrupted
 
     overrides = list(overrides)
     if cfg.get("resume", True):
@@ -166,6 +167,13 @@ def run_job(
     try:
         summary = run_experiment(cfg, out_dir, cache=WORKER_CACHE,
                                  origin=RunOrigin(dict(choices), tuple(overrides))).summary
+    except RunInterrupted:
+        raise  # stopped in its loop: its partial record is written
+    except KeyboardInterrupt as exc:  # stopped while building: the row says so, resume reruns it
+        summary = {**error_summary(exc, overrides, cfg, choices), "status": "interrupted"}
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        record.write_summary(out_dir, summary)
+        raise
     except Exception as exc:  # the sweep goes on; the row says what happened
         log.error("job failed: %s\n%s", exc, traceback.format_exc())
         summary = error_summary(exc, overrides, cfg, choices)
