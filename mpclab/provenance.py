@@ -44,9 +44,14 @@ def cpu_model() -> str:
 
 
 def command(argv: Sequence[str] | None = None) -> str:
-    """``uv run python SCRIPT ARGS`` as typed from the repository's top folder."""
+    """``uv run python SCRIPT ARGS`` as typed from the repository's top folder (``-m MODULE``
+    for a module of the package, run as ``python -m``)."""
     argv = list(sys.argv if argv is None else argv)
     script = Path(argv[0]).resolve()
+    args = " ".join(shlex.quote(a) for a in argv[1:])
+    if script.is_relative_to(ROOT / "mpclab") and script.suffix == ".py":
+        module = ".".join(script.relative_to(ROOT).with_suffix("").parts)
+        return f"uv run python -m {module} {args}".rstrip()
     shown = str(script.relative_to(ROOT)) if script.is_relative_to(ROOT) else argv[0]
     return "uv run python " + " ".join(shlex.quote(a) for a in [shown, *argv[1:]])
 
@@ -56,3 +61,19 @@ def stamp(argv: Sequence[str] | None = None) -> str:
     date = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     return (f"`{command(argv)}` · commit {commit()} · {cpu_model()}, {os.cpu_count()} cores"
             f" · {date}")
+
+
+def stamped(text: str, argv: Sequence[str] | None = None) -> str:
+    """``text`` (a Markdown table, say) with :func:`stamp` on a line below it."""
+    return f"{text.rstrip()}\n\n{stamp(argv)}\n"
+
+
+def write_stamped(path: Path | str | None, text: str,
+                  argv: Sequence[str] | None = None) -> str:
+    """Print ``text`` stamped; also write it to ``path`` (a ``--md`` option) when given."""
+    out = stamped(text, argv)
+    print(out)
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(out)
+    return out

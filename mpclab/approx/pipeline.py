@@ -40,6 +40,7 @@ from mpclab.approx.train import TrainConf, train
 from mpclab.errors import exit_on_bad_input
 from mpclab.experiment import build_run, compose
 from mpclab.policy.mlp import MLP
+from mpclab.provenance import stamped
 from mpclab.record import jsonable
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -203,7 +204,7 @@ def main(argv: list[str] | None = None) -> None:
         shutil.copy(weights, pub / "weights.npz")
         (pub / "mpclab_nn.c").write_text(to_c(MLP.load(pub / "weights.npz")))
         pd.DataFrame(history).to_csv(pub / "training.csv", index=False)
-        (pub / "training.md").write_text(pd.DataFrame(history).to_markdown(index=False) + "\n")
+        (pub / "training.md").write_text(stamped(pd.DataFrame(history).to_markdown(index=False)))
     if "eval" in stages:
         run_eval(conf, pub / "weights.npz", work / "eval", pub)
     print(f"done in {time.perf_counter() - t0:.0f} s; results in {pub}", flush=True)
@@ -284,7 +285,7 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
         lines += ["## Layouts the net never saw (random starts)", "",
                   lt.to_markdown(index=False, floatfmt=".3g"), ""]
         summary["layouts"] = layout_rows
-    (pub / "evaluation.md").write_text("\n".join(lines))
+    (pub / "evaluation.md").write_text(stamped("\n".join(lines)))
     (pub / "evaluation.json").write_text(
         json.dumps(jsonable(summary), indent=2, allow_nan=False, default=str) + "\n"
     )

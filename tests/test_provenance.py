@@ -1,0 +1,31 @@
+"""The stamp under a result table: command, commit, CPU model and cores, date."""
+
+from __future__ import annotations
+
+import os
+import re
+
+from mpclab import provenance
+
+
+def test_stamp_names_command_commit_cpu_and_date() -> None:
+    argv = [str(provenance.ROOT / "experiments" / "x" / "bench.py"), "--md", "a b.md"]
+    s = provenance.stamp(argv)
+    assert s.startswith("`uv run python experiments/x/bench.py --md 'a b.md'` · commit ")
+    assert provenance.cpu_model() in s
+    assert f"{os.cpu_count()} cores" in s
+    assert re.search(r"\d{4}-\d{2}-\d{2} \d{2}:\d{2} UTC$", s)
+
+
+def test_a_module_of_the_package_is_named_as_run_with_dash_m() -> None:
+    argv = [str(provenance.ROOT / "mpclab" / "approx" / "pipeline.py"), "--stages", "eval"]
+    assert provenance.command(argv) == "uv run python -m mpclab.approx.pipeline --stages eval"
+
+
+def test_write_stamped_prints_and_writes_the_table_with_its_stamp(tmp_path, capsys) -> None:
+    table = "| a |\n|---|\n| 1 |"
+    out = provenance.write_stamped(tmp_path / "sub" / "t.md", table, ["bench.py"])
+    assert (tmp_path / "sub" / "t.md").read_text() == out
+    assert out.startswith(table + "\n\n`uv run python bench.py` · commit ")
+    assert out in capsys.readouterr().out
+    assert provenance.write_stamped(None, table, ["bench.py"]).startswith(table)
