@@ -12,24 +12,37 @@ import platform
 import shlex
 import subprocess
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
 #: the repository's top folder (the stamp names commands relative to it)
 ROOT = Path(__file__).resolve().parents[1]
+#: when this process imported the module: about when the command started
+STARTED = time.time()
 
 
 def commit() -> str:
-    """The checked-out commit (short), ``+dirty`` when tracked files differ from it."""
+    """The checked-out commit (short), ``+dirty`` when tracked files differed from it before
+    this command started (a result file the command itself rewrote does not count)."""
     def git(*args: str) -> str:
         try:
             return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True,
-                                  text=True, check=False, timeout=10).stdout.strip()
+                                  text=True, check=False, timeout=10).stdout
         except (OSError, subprocess.TimeoutExpired):
             return ""
 
-    head = git("rev-parse", "--short", "HEAD") or "unknown"
-    return head + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+    head = git("rev-parse", "--short", "HEAD").strip() or "unknown"
+    changed = git("diff", "--name-only", "HEAD").splitlines()
+    return head + ("+dirty" if any(_changed_before(ROOT / p) for p in changed) else "")
+
+
+def _changed_before(path: Path) -> bool:
+    """A tracked file that differs from the commit: changed before :data:`STARTED`?"""
+    try:
+        return path.stat().st_mtime < STARTED
+    except OSError:
+        return True  # deleted
 
 
 def cpu_model() -> str:

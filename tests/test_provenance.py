@@ -29,3 +29,13 @@ def test_write_stamped_prints_and_writes_the_table_with_its_stamp(tmp_path, caps
     assert out.startswith(table + "\n\n`uv run python bench.py` · commit ")
     assert out in capsys.readouterr().out
     assert provenance.write_stamped(None, table, ["bench.py"]).startswith(table)
+
+
+def test_a_file_this_command_rewrote_does_not_make_the_stamp_dirty(tmp_path, monkeypatch) -> None:
+    path = tmp_path / "results.csv"
+    path.write_text("x\n")
+    monkeypatch.setattr(provenance, "STARTED", path.stat().st_mtime - 10)
+    assert not provenance._changed_before(path)  # written after the command started
+    monkeypatch.setattr(provenance, "STARTED", path.stat().st_mtime + 10)
+    assert provenance._changed_before(path)
+    assert provenance._changed_before(tmp_path / "deleted.csv")
