@@ -63,7 +63,8 @@ def command(argv: Sequence[str] | None = None) -> str:
     script = Path(argv[0]).resolve()
     args = " ".join(shlex.quote(a) for a in argv[1:])
     if script.is_relative_to(ROOT / "mpclab") and script.suffix == ".py":
-        module = ".".join(script.relative_to(ROOT).with_suffix("").parts)
+        parts = script.relative_to(ROOT).with_suffix("").parts
+        module = ".".join(parts[:-1] if parts[-1] == "__main__" else parts)
         return f"uv run python -m {module} {args}".rstrip()
     shown = str(script.relative_to(ROOT)) if script.is_relative_to(ROOT) else argv[0]
     return "uv run python " + " ".join(shlex.quote(a) for a in [shown, *argv[1:]])

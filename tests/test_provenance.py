@@ -39,3 +39,8 @@ def test_a_file_this_command_rewrote_does_not_make_the_stamp_dirty(tmp_path, mon
     monkeypatch.setattr(provenance, "STARTED", path.stat().st_mtime + 10)
     assert provenance._changed_before(path)
     assert provenance._changed_before(tmp_path / "deleted.csv")
+
+
+def test_the_package_s_own_command_is_named_as_typed() -> None:
+    argv = [str(provenance.ROOT / "mpclab" / "__main__.py"), "-m", "+experiment=car_cvxpy"]
+    assert provenance.command(argv) == "uv run python -m mpclab -m +experiment=car_cvxpy"

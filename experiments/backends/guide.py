@@ -212,7 +212,7 @@ def markdown(df: pd.DataFrame) -> str:
             f"| {r.plant} | {r.backend} | {r.problem} | {r.task} | {r.arrived} of {r.runs} | "
             f"{f(r.arrival_median_s, '.1f')} | {r.converged:.2f} | {r.median_ms:.3g} | "
             f"{r.p95_ms:.3g} | {r.cpu_median_ms:.3g} | {f(r.gap_median, '.2g')} | {gap_max} | "
-            f"{r.generated_c or '-'} |")
+            f"{'-' if pd.isna(r.generated_c) else r.generated_c} |")
     return "\n".join(lines)
 
 

@@ -9,8 +9,8 @@ stamped with command, commit, CPU and date; ``--md`` also writes it) that
 experiments/zumo/README.md shows. Rows: the three experiments of the study (J1..J4, J1..J5,
 BUG2) on its three layouts; the study's BUG2 formulation (``zumo_bug2_study``); BUG2 on the
 truncated 3-step SQP backend (``rti3``); the study's J4 constants (``study_J4``) where they
-decide the outcome; BUG2 on the untuned layouts (tests/test_zumo_layouts.py) and on random
-walls.
+decide the outcome; both BUG2 formulations on the untuned layouts
+(tests/test_zumo_layouts.py); BUG2 and the right-hand rule on random walls.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ RUNS = [
     for exp, scen in (("zumo_potential", "zumo_one_obstacle"), ("zumo_potential", "zumo_wall"),
                       ("zumo_right_hand", "zumo_wall"), ("zumo_right_hand", "zumo_dead_end"),
                       ("zumo_bug2_study", "zumo_dead_end"))
-] + [("zumo_bug2", scen, 0, "", []) for scen in LAYOUTS] + [
+] + [(exp, scen, 0, "", []) for exp in ("zumo_bug2", "zumo_bug2_study")
+     for scen in LAYOUTS] + [
     ("zumo_bug2", "zumo_random", s, "", []) for s in (0, 1, 2, 3, 4, 5)
 ] + [("zumo_right_hand", "zumo_random", s, "", []) for s in (0, 1, 2)]
 

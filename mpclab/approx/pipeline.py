@@ -171,11 +171,13 @@ def main(argv: list[str] | None = None) -> None:
         rep = dataset.merge([work / "data"], data_path)
         print(f"dataset: {rep.rows} rows from {rep.runs} runs, {len(rep.missing)} runs "
               f"without rows, configs {rep.config_hashes}", flush=True)
-    try:
-        data, meta = dataset.read(data_path)
-    except FileNotFoundError as exc:  # stages after data, without it
-        exit_on_bad_input(ap, exc)
-    data["source"] = "expert runs"
+    data, meta = pd.DataFrame(), {}
+    if {"train", "dagger"} & set(stages):  # the evaluation alone needs no dataset
+        try:
+            data, meta = dataset.read(data_path)
+        except FileNotFoundError as exc:  # stages after data, without it
+            exit_on_bad_input(ap, exc)
+        data["source"] = "expert runs"
     history = []
     weights = work / "weights_round0.npz"
     if "train" in stages:
