@@ -40,6 +40,15 @@ def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> No
         assert "compiled net" in (pub / "evaluation.md").read_text()
     assert {r["layout"] for r in ev["layouts"]} == {"zumo_wall"}
     assert (pub / "paths.png").stat().st_size > 10_000
+    for table in ("training.md", "evaluation.md"):  # stamped: command, commit, CPU, date
+        text = (pub / table).read_text()
+        assert " · commit " in text and " cores · " in text
+    # the evaluation alone re-runs on the published net, with no dataset in its work folder
+    (pub / "evaluation.md").unlink()
+    main(["--config", str(ROOT / "conf/approx/zumo_nn_smoke.yaml"), "--stages", "eval",
+          f"work_dir={tmp_path / 'eval_only'}", f"publish_dir={pub}"])
+    assert not (tmp_path / "eval_only" / "dataset.parquet").exists()
+    assert "## Single obstacle, held-out starts" in (pub / "evaluation.md").read_text()
 
 
 def test_pipeline_config_typos_are_errors() -> None:

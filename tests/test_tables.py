@@ -151,7 +151,9 @@ def test_command_writes_every_file(outputs: Path, capsys: pytest.CaptureFixture[
     md = (out / "summary.md").read_text()
     # sweep b varies the horizon: a group of its own per horizon
     assert "## By backend, scenario, controller.horizon" in md and "## Runs (9)" in md
-    assert "| casadi " in md and "nan" not in md
+    *table, stamp_line = md.rstrip().splitlines()  # stamped: command, commit, CPU, date
+    assert stamp_line.startswith("`uv run python ") and " · commit " in stamp_line
+    assert "| casadi " in md and "nan" not in "\n".join(table)
     assert "casadi" in capsys.readouterr().out
 
 

@@ -11,12 +11,13 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-# measured (IPOPT + dU, experiments/zumo/README.md): arrival [s]; whether BUG2 follows a wall
+# measured (zumo_bug2_study, experiments/zumo/README.md's outcomes): arrival [s]; whether
+# BUG2 follows a wall
 LAYOUTS = {
     "zumo_long_wall": (11.0, True),        # 1.1 m across, its ends out of sight of the hit point
     "zumo_l_wall": (12.0, True),           # the wall turns up beside the start
-    "zumo_cup": (10.4, True),              # drives into a cup, climbs out along its wall
-    "zumo_narrow_gap": (10.0, True),       # 3 cm a side: J4 bars it; blocked, goes around
+    "zumo_cup": (10.2, True),              # drives into a cup, climbs out along its wall
+    "zumo_narrow_gap": (9.6, True),        # 3 cm a side: J4 bars it; blocked, goes around
     "zumo_wide_gap": (2.2, False),         # straight through, nothing blocks
     "zumo_goal_near_wall": (4.4, True),    # leaves the disc with the goal in sight
 }

@@ -3,8 +3,9 @@
     uv run python experiments/bicycle/bench.py            # all runs, figures, timing
     uv run python experiments/bicycle/bench.py --steps 300 --skip-runs   # timing only
 
-Writes ``results.md`` and ``results.csv`` beside this file and ``figures/*.png``; the run
-records go to ``outputs/bicycle_bench/<scenario>_<mode>_<dt>/``.
+Writes ``results.md`` (stamped: command, commit, CPU, date) and ``results.csv`` beside this
+file and ``figures/*.png``; the run records go to
+``outputs/bicycle_bench/<scenario>_<mode>_<dt>/``.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from mpclab.controllers.base import StepContext  # noqa: E402
 from mpclab.experiment import build_run, run_experiment  # noqa: E402
 from mpclab.experiment import compose as compose_cfg  # noqa: E402
 from mpclab.instantiate import build  # noqa: E402
+from mpclab.provenance import stamped  # noqa: E402
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
 MODES = {"switched": "bicycle_scheduled", "interpolated": "bicycle_interpolated",
@@ -183,8 +185,7 @@ def main() -> None:
     ap.add_argument("--skip-runs", action="store_true", help="only the interleaved timing")
     args = ap.parse_args()
     out_root = ROOT / "outputs" / "bicycle_bench"
-    parts = ["# Study C benchmark results", "",
-             f"Command: `uv run python experiments/bicycle/bench.py --steps {args.steps}`", ""]
+    parts = ["# Study C benchmark results", ""]
     if not args.skip_runs:
         table = run_all(out_root)
         table.to_csv(HERE / "results.csv", index=False)
@@ -206,7 +207,7 @@ def main() -> None:
     print(cost.to_string(index=False), flush=True)
     parts += ["## Adaptive mode with 1 and 2 RK4 substeps, interleaved in one process (20 ms)",
               "", fmt(cost), ""]
-    (HERE / "results.md").write_text("\n".join(parts))
+    (HERE / "results.md").write_text(stamped("\n".join(parts)))
 
 
 if __name__ == "__main__":

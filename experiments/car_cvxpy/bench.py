@@ -10,15 +10,17 @@ with the one-pass linearization; and ``car_casadi``, the same OCP solved as a no
 to convergence (CasADi's SQP with qrqp, compiled). Whole closed-loop runs alternate for
 ``--rounds`` rounds and the per-step times of each are pooled.
 
-    uv run python experiments/car_cvxpy/bench.py [--rounds 5]
+    uv run python experiments/car_cvxpy/bench.py [--rounds 5] [--md FILE]
+
+Prints the table with its stamp (command, commit, CPU, date); ``--md`` also writes it.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
+from pathlib import Path
 
 import cvxpy as cp
 import numpy as np
@@ -28,6 +30,7 @@ from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
 from mpclab.controllers.cvxpy import CvxpyMPC
 from mpclab.experiment import build_run, compose
 from mpclab.objectives.base import TermContext
+from mpclab.provenance import write_stamped
 from mpclab.sim import simulate
 
 
@@ -94,9 +97,11 @@ def cpu_timed(run, log: list[float]) -> None:
 
 
 def main(argv: list[str] | None = None) -> pd.DataFrame:
+    argv = list(sys.argv if argv is None else argv)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=5)
-    args = ap.parse_args(argv)
+    ap.add_argument("--md", type=Path, help="also write the stamped table here")
+    args = ap.parse_args(argv[1:])
     runs = {
         "converged SL, exact Hessian (default)": build([]),
         "converged SL, exact Hessian, via Problem.solve": build(["controller.solve_via=problem"]),
@@ -108,18 +113,19 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
         "converged NLP, CasADi SQP + qrqp, compiled (car_casadi)": build_run(
             compose(["+experiment=car_casadi", "recorder=none"])),
     }
-    return compare(runs, args.rounds)
+    table = compare(runs, args.rounds)
+    write_stamped(args.md, table.to_markdown(index=False, floatfmt=".3g"), argv)
+    return table
 
 
 def compare(runs: dict, rounds: int) -> pd.DataFrame:
     """Alternate whole runs of ``runs`` for ``rounds`` rounds, pool their per-step times and
-    print the table (speed-ups against the study's program, ``runs[REF]``)."""
+    return the table (speed-ups against the study's program, ``runs[REF]``)."""
     steps: dict[str, list[pd.DataFrame]] = {name: [] for name in runs}
     cpu: dict[str, list[float]] = {name: [] for name in runs}
     for name, run in runs.items():
         cpu_timed(run, cpu[name])
     summaries: dict[str, dict] = {}
-    load = os.getloadavg()[0]
     for r in range(rounds):
         for name, run in runs.items():
             res = simulate(run)
@@ -148,11 +154,7 @@ def compare(runs: dict, rounds: int) -> pd.DataFrame:
             "speed-up (median)": ref_median / np.median(t),
             "speed-up (cpu median)": np.median(cpu[REF]) / np.median(cpu[name]),
         })
-    table = pd.DataFrame(rows)
-    print(table.to_markdown(index=False, floatfmt=".3g"))
-    print(f"load average (1 min): {load:.2f} before, {os.getloadavg()[0]:.2f} after "
-          f"({os.cpu_count()} cores)")
-    return table
+    return pd.DataFrame(rows)
 
 
 if __name__ == "__main__":

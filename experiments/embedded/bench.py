@@ -11,13 +11,15 @@ controller; its controller calls are the recorded states. Then, interleaved stat
 through ctypes, inside the same Python step: ControlStep, prediction, cost); the generated C
 alone in a C loop (``clock_gettime``, the controller's step without the prediction); and the
 PIL check in double and single precision (footprint, agreement with the desktop C,
-instructions per step). Writes ``results.md`` and ``results.csv`` beside this file.
+instructions per step). Writes ``results.md`` (the table with its stamp: command, commit,
+CPU, date) and ``results.csv`` beside this file.
 """
 
 from __future__ import annotations
 
 import argparse
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +33,7 @@ from mpclab.codegen.loader import DEFAULT_FLAGS
 from mpclab.controllers.base import StepContext
 from mpclab.experiment import build_run
 from mpclab.experiment import compose as compose_cfg
+from mpclab.provenance import write_stamped
 from mpclab.sim import simulate
 
 HERE = Path(__file__).resolve().parent
@@ -166,8 +169,7 @@ def main() -> None:
               flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(HERE / "results.csv", index=False)
-    (HERE / "results.md").write_text(table(df) + "\n")
-    print(table(df))
+    write_stamped(HERE / "results.md", table(df), sys.argv)
 
 
 if __name__ == "__main__":

@@ -11,13 +11,14 @@ after another, so each solve time is measured on an otherwise idle core.
     uv run python experiments/latency/run_latency.py            # results.csv/.md, figure
     uv run python experiments/latency/run_latency.py --only car  # one study
 
-Writes ``results.csv``, ``results.md`` and ``figures/arrival_vs_latency.png`` here.
+Writes ``results.csv``, ``results.md`` (the table with its stamp: command, commit, CPU, date)
+and ``figures/arrival_vs_latency.png`` here.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -27,6 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from mpclab.experiment import build_run, compose  # noqa: E402
+from mpclab.provenance import write_stamped  # noqa: E402
 from mpclab.quiet import c_stdout_silenced  # noqa: E402
 from mpclab.sim import simulate  # noqa: E402
 
@@ -99,9 +101,8 @@ def main() -> None:
                   f"misses {row['deadline_misses']}", flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(HERE / "results.csv", index=False)
-    (HERE / "results.md").write_text(df.to_markdown(index=False, floatfmt=".3g") + "\n")
+    write_stamped(HERE / "results.md", df.to_markdown(index=False, floatfmt=".3g"), sys.argv)
     plot(df)
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
 def plot(df: pd.DataFrame) -> None:

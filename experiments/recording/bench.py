@@ -9,6 +9,9 @@ the machine disturb less.
 
     uv run python experiments/recording/bench.py car_cvxpy [zumo_bug2 ...] [--rounds 7]
         [--override KEY=VALUE ...]   # extra Hydra overrides for every run
+        [--md FILE]                  # also write the stamped table there
+
+The table is printed with its stamp (command, commit, CPU, date).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from mpclab.experiment import compose, run_experiment
+from mpclab.provenance import write_stamped
 from mpclab.registry import register_all
 
 RECORDERS = ("none", "rerun")
@@ -87,7 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=7, help="alternating pairs of runs")
     parser.add_argument("--override", action="append", default=[],
                         help="Hydra override applied to every run (repeatable)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--md", type=Path, help="also write the stamped table here")
+    argv = list(sys.argv if argv is None else argv)
+    args = parser.parse_args(argv[1:])
     register_all()
     rows = []
     with tempfile.TemporaryDirectory(prefix="mpclab_rec_bench_") as tmp:
@@ -95,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(bench(name, args.rounds, args.override, Path(tmp)))
             print(f"{name}: done", file=sys.stderr)
     table = pd.DataFrame(rows)
-    print(table.to_markdown(index=False, floatfmt=".3f"))
+    write_stamped(args.md, table.to_markdown(index=False, floatfmt=".3f"), argv)
     return 0
 
 

@@ -6,6 +6,9 @@ counts predicted horizons (one per step), their points (horizon + 1), obstacles 
 blueprint. Prints one row per experiment; exits non-zero if any check fails.
 
     uv run python experiments/recording/verify_all.py [NAME ...] [--override KEY=VALUE ...]
+        [--md FILE]
+
+The table is printed with its stamp (command, commit, CPU, date); ``--md`` also writes it.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from bench import compose_run, timed_run
 from rerun.chunk import RrdReader
 
 from mpclab.experiment import CONF_DIR as CONF
+from mpclab.provenance import write_stamped
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.rerun import RRD
 from mpclab.registry import register_all
@@ -79,7 +83,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("experiments", nargs="*", help="default: every conf/experiment/*.yaml")
     parser.add_argument("--override", action="append", default=[],
                         help="Hydra override applied to every run (repeatable)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--md", type=Path, help="also write the stamped table here")
+    argv = list(sys.argv if argv is None else argv)
+    args = parser.parse_args(argv[1:])
     register_all()
     names = args.experiments or sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
     rows = []
@@ -99,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     for col in ("steps", "horizons", "obstacles"):
         if col in table:
             table[col] = table[col].astype("Int64")
-    print(table.to_markdown(index=False, floatfmt=".2f"))
+    write_stamped(args.md, table.to_markdown(index=False, floatfmt=".2f"), argv)
     return 0 if (table["checks"] == "ok").all() else 1
 
 

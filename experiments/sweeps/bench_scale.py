@@ -22,7 +22,7 @@ two busy cores less than twice one), the per-job time outside the closed loop on
 worker (every job but each worker's first), the speed-up of 2 workers, an Amdahl fit
 ``T(W) = S + P / W`` and its projection to 16 and 64 cores, and the bound
 ``sum(closed loop) / W * 1.3``. ``--wait-quiet`` first waits (up to 10 minutes) until the
-1-minute load average is below 1.
+1-minute system load is below 1.
 
 Before the sweeps, mpclab's own modules are compiled to bytecode (``compileall``), as Python
 does on its first import anywhere bytecode is written: a machine that sets
@@ -54,7 +54,7 @@ SWEEP = ["+experiment=zumo_bug2", "scenario=zumo_random", "recorder=none",
 
 
 def wait_quiet(limit_s: float = 600.0) -> float:
-    """Wait until the 1-minute load average is below 1 (or ``limit_s``); return it."""
+    """Wait until the 1-minute system load is below 1 (or ``limit_s``); return it."""
     t0 = time.time()
     while os.getloadavg()[0] >= 1.0 and time.time() - t0 < limit_s:
         time.sleep(30)
@@ -124,7 +124,7 @@ def main() -> None:
              else "mpclab's bytecode compiled first"), flush=True)
     bytecode(compiled=not args.source)
     if args.wait_quiet:
-        print(f"load average before: {wait_quiet():.2f}", flush=True)
+        print(f"system load (1 min) before: {wait_quiet():.2f}", flush=True)
     results = []
     with tempfile.TemporaryDirectory(prefix="mpclab_bench_") as tmp:
         for r in range(args.rounds):
@@ -139,7 +139,7 @@ def main() -> None:
         loops = r["closed_loop_sum_s"] / r["workers"]
         print(f"  W={r['workers']}: {r['rows']}/{r['jobs']} rows, wall {r['wall_s']:.1f} s, "
               f"closed loops / W = {loops:.1f} s: wall = {r['wall_s'] / loops:.2f} x that")
-    print(f"load average: before {df['load_before'].min():.2f}-{df['load_before'].max():.2f}, "
+    print(f"load (1 min): before {df['load_before'].min():.2f}-{df['load_before'].max():.2f}, "
           f"after {df['load_after'].min():.2f}-{df['load_after'].max():.2f}; "
           f"cores {os.cpu_count()}")
     print(f"per job outside the closed loop on a warm worker: median "

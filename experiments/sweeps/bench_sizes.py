@@ -11,7 +11,7 @@ sweep measured it (before its first job starts and after its last one ends; the 
 every run on W workers), ``j_W`` the least-squares slope through the origin of the rest of the
 wall time against N (for two workers it also carries each worker's first set-up). The figure
 shows each pair's ratio (the runs of one size, next to each other), each size's ratio of
-medians, and ``T_1(N) / T_2(N)``, beside the 1.8 of issue 16; the table is printed as Markdown.
+medians, and ``T_1(N) / T_2(N)``, beside a target of 1.8; the table is printed as Markdown.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-TARGET = 1.8  # issue 16's speed-up of 2 workers, for its 48-job sweep
+TARGET = 1.8  # the speed-up of 2 workers asked of a 48-job sweep
 
 
 def measure(sizes: list[int], rounds: int) -> pd.DataFrame:
@@ -90,7 +90,7 @@ def plot(df: pd.DataFrame, lines: dict[int, tuple[float, float]], out: Path) -> 
     pairs = pair_ratios(df)
     ax.plot(pairs["jobs"], pairs["ratio"], ".", color="0.6", label="ratio of one pair of runs")
     ax.plot(med.index, med[1] / med[2], "o", color="C1", label="ratio of medians")
-    ax.axhline(TARGET, color="0.4", ls="--", lw=1, label=f"issue 16: {TARGET}")
+    ax.axhline(TARGET, color="0.4", ls="--", lw=1, label=f"target: {TARGET}")
     ax.axhline(2.0, color="0.7", ls=":", lw=1)
     ax.set_xscale("log", base=2)
     ax.set_xticks(list(med.index), [str(n) for n in med.index])
@@ -113,7 +113,7 @@ def main() -> None:
         parser.error("--sizes: at least two sizes (the lines need them)")
     bytecode(compiled=True)
     if args.wait_quiet:
-        print(f"load average before: {wait_quiet():.2f}", flush=True)
+        print(f"system load (1 min) before: {wait_quiet():.2f}", flush=True)
     df = measure(sorted(set(args.sizes)), args.rounds)
     lines = fit(df)
     print("\n" + table(df, lines))
@@ -123,7 +123,7 @@ def main() -> None:
     s2, j2 = lines[2]
     if j1 > TARGET * j2:  # where the lines' ratio reaches the target
         print(f"the lines reach {TARGET} from N = {(TARGET * s2 - s1) / (j1 - TARGET * j2):.0f}")
-    print(f"load average before each run: {statistics.median(df['load_before']):.2f} median, "
+    print(f"load (1 min) before each run: {statistics.median(df['load_before']):.2f} median, "
           f"{df['load_before'].max():.2f} max")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     plot(df, lines, args.out)

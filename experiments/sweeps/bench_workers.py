@@ -5,7 +5,7 @@
 Runs ``python -m mpclab -m +experiment=car_cvxpy +sweep=workers hydra.launcher.n_jobs=N``
 in the order 1, 2, 2, 1, ... (ABBA, so a drift in machine load falls on both), timing each
 whole command (start-up included) and the sweep itself (multirun start to end, from its log).
-Prints a Markdown table, the ratio of medians, and the load average before and after.
+Prints a Markdown table, the ratio of medians, and the system load before and after.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def main() -> None:
               f"{', '.join(f'{s:.0f}' for s in sweeps)} | {med[n][1]:.0f} |")
     print(f"\nspeed-up 2 vs 1 workers: {med[1][0] / med[2][0]:.2f}x (command), "
           f"{med[1][1] / med[2][1]:.2f}x (sweep)")
-    print(f"load average (1, 5, 15 min) before: {', '.join(f'{x:.2f}' for x in load_before)}; "
+    print(f"system load (1, 5, 15 min) before: {', '.join(f'{x:.2f}' for x in load_before)}; "
           f"after: {', '.join(f'{x:.2f}' for x in load_after)}; cores: {os.cpu_count()}")
 
 

@@ -13,14 +13,17 @@ Rounds alternate the candidates so that a load change on the machine hits them a
     uv run python experiments/zumo/bench_solvers.py                      # Zumo BUG2, all
     uv run python experiments/zumo/bench_solvers.py --only fatrop-jit ipopt-single
     uv run python experiments/zumo/bench_solvers.py --experiment car_casadi
+
+The table is printed with its stamp (command, commit, CPU, date); ``--md FILE`` also writes it.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,6 +32,7 @@ from omegaconf import OmegaConf
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.experiment import build_run, compose
+from mpclab.provenance import write_stamped
 from mpclab.quiet import c_stdout_silenced
 from mpclab.sim import simulate
 
@@ -140,12 +144,12 @@ def main() -> None:
     ap.add_argument("--experiment", default="zumo_bug2")
     ap.add_argument("--only", nargs="*", help="candidate names (default: all)")
     ap.add_argument("--rounds", type=int, default=1, help="replays of every candidate")
+    ap.add_argument("--md", type=Path, help="also write the stamped table here")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of the recorded run")
     a = ap.parse_args()
     cfg, steps, status = record(a.experiment, a.overrides)
     run = build_run(cfg)
-    print(f"{a.experiment}: {len(steps)} recorded steps (IPOPT run: {status}); "
-          f"load average {os.getloadavg()[0]:.2f}")
+    print(f"{a.experiment}: {len(steps)} recorded steps (IPOPT run: {status})")
     ref = reference(cfg, run, steps)
     table = candidates()
     names = a.only or list(table)
@@ -165,9 +169,8 @@ def main() -> None:
     for _ in range(a.rounds):
         for name in names:
             rows[name] += replay(ctrls[name], steps)
-    print(f"| {'solver':26s} | converged | median ms | p95 ms | CPU median ms | CPU p95 ms "
-          f"| mean iter | agree |")
-    print("|---|---|---|---|---|---|---|---|")
+    lines = [f"| {'solver':26s} | converged | median ms | p95 ms | CPU median ms | CPU p95 ms "
+             f"| mean iter | agree |", "|---|---|---|---|---|---|---|---|"]
     for name in names:
         times = np.array([t for t, _, _ in rows[name]]) * 1e3
         cpu = np.array([c for _, c, _ in rows[name]]) * 1e3
@@ -176,10 +179,10 @@ def main() -> None:
         iters = np.mean([r.iterations or 0 for r in res])
         agree = np.mean([np.abs(r.u - ref[i % len(steps)]).max() < 1e-3
                          for i, r in enumerate(res)])
-        print(f"| {name:26s} | {conv:9.2f} | {np.median(times):9.2f} | "
-              f"{np.percentile(times, 95):6.2f} | {np.median(cpu):13.2f} | "
-              f"{np.percentile(cpu, 95):10.2f} | {iters:9.1f} | {agree:5.2f} |")
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
+        lines.append(f"| {name:26s} | {conv:9.2f} | {np.median(times):9.2f} | "
+                     f"{np.percentile(times, 95):6.2f} | {np.median(cpu):13.2f} | "
+                     f"{np.percentile(cpu, 95):10.2f} | {iters:9.1f} | {agree:5.2f} |")
+    write_stamped(a.md, "\n".join(lines), sys.argv)
 
 
 if __name__ == "__main__":

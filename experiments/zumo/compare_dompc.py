@@ -11,17 +11,21 @@ closed-loop run of the CasADi backend; at every state each controller makes one 
 order alternating, each warm-started from its own previous solution. The table gives the
 median and p95 of the per-step wall time and their ratio. A third controller, interleaved
 with the two, is set by ``--backend`` (default: 3 SQP steps per sample on the
-single-shooting form of the same NLP, qpOASES, the truncated real-time iteration
-``zumo_bug2`` used before issue 12): the same objective, bounds and horizon, but not solved to
-convergence. do-mpc is an optional dependency: nothing in
-mpclab or its tests imports this file.
+single-shooting form of the same NLP, qpOASES, the truncated real-time iteration): the same
+objective, bounds and horizon, but not solved to convergence. The first controller is the
+experiment's NLP on IPOPT (``controller=casadi``), whatever backend the experiment ships with.
+The table is printed with its stamp (command, commit, CPU, date); ``--md FILE`` also writes
+it. do-mpc is an optional dependency: nothing in mpclab or its tests imports this file.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+import tempfile
 import time
 import warnings
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -29,6 +33,7 @@ import numpy as np
 from mpclab.controllers.base import StepContext
 from mpclab.experiment import build_run, compose, run_experiment
 from mpclab.objectives.base import TermContext
+from mpclab.provenance import write_stamped
 from mpclab.registry import register_all
 
 warnings.filterwarnings("ignore")
@@ -86,13 +91,13 @@ def main() -> None:
     ap.add_argument("--backend", nargs="*",
                     default=["controller=casadi_rti", "controller.sqp_iterations=3"],
                     help="overrides of the third controller (default: 3-step SQP RTI)")
+    ap.add_argument("--md", type=Path, help="also write the stamped table here")
     args = ap.parse_args()
     register_all()
     over = [f"+experiment={args.experiment}", f"scenario={args.scenario}", "recorder=none",
             "progress=false", "figures.enabled=false"]
-    cfg = compose(over)
+    cfg = compose([*over, "controller=casadi"])  # IPOPT, as do-mpc
     cfg_b = compose(over + list(args.backend))
-    import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         ref = run_experiment(cfg, tmp)
@@ -127,17 +132,18 @@ def main() -> None:
                     mpc.make_step(x.reshape(-1, 1))
                 times[who].append(time.perf_counter() - t0)
     a, b, c = (np.asarray(times[n]) * 1e3 for n in names)
-    print(f"{args.experiment} on {args.scenario}: {len(states)} states x {args.repeats} repeats")
-    print("| controller | median ms | p95 ms |")
-    print("|---|---|---|")
     backend = " ".join(args.backend)
+    lines = [f"{args.experiment} on {args.scenario}: {len(states)} states x {args.repeats} "
+             "repeats", "", "| controller | median ms | p95 ms |", "|---|---|---|"]
     for name, v in (("mpclab casadi (IPOPT)", a), ("do-mpc (IPOPT)", b),
                     (f"mpclab casadi ({backend})", c)):
-        print(f"| {name} | {np.median(v):.2f} | {np.percentile(v, 95):.2f} |")
+        lines.append(f"| {name} | {np.median(v):.2f} | {np.percentile(v, 95):.2f} |")
+    lines.append("")
     for label, v in (("mpclab IPOPT", a), ("mpclab backend", c)):
-        print(f"ratio do-mpc / {label}, of median per-step times: "
-              f"{np.median(b) / np.median(v):.2f}; median of paired ratios: "
-              f"{np.median(b / v):.2f}")
+        lines.append(f"ratio do-mpc / {label}, of median per-step times: "
+                     f"{np.median(b) / np.median(v):.2f}; median of paired ratios: "
+                     f"{np.median(b / v):.2f}")
+    write_stamped(args.md, "\n".join(lines), sys.argv)
 
 
 if __name__ == "__main__":

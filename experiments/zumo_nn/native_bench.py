@@ -12,7 +12,9 @@ what any step costs in the Python loop (the base class's failure handling, the r
 The table gives medians, p95 and the expert's median (whole step, and solver call only)
 over each.
 
-    uv run python experiments/zumo_nn/native_bench.py [--starts 20] [--reps 200]
+    uv run python experiments/zumo_nn/native_bench.py [--starts 20] [--reps 200] [--md FILE]
+
+The table is printed with its stamp (command, commit, CPU, date); ``--md`` also writes it.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from mpclab.approx.export_c import c_compiler, time_compiled
 from mpclab.controllers.base import ControlStep, SolveStatus
 from mpclab.experiment import build_run, compose
 from mpclab.policy.mlp import MLP
+from mpclab.provenance import write_stamped
 from mpclab.sim import simulate
 
 HERE = Path(__file__).resolve().parent
@@ -104,7 +107,9 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     ap.add_argument("--starts", type=int, default=20, help="held-out starts (default 20)")
     ap.add_argument("--reps", type=int, default=200, help="C calls per visited state")
     ap.add_argument("--weights", type=Path, default=HERE / "weights.npz")
-    args = ap.parse_args(argv)
+    ap.add_argument("--md", type=Path, help="also write the stamped table here")
+    argv = list(sys.argv if argv is None else argv)
+    args = ap.parse_args(argv[1:])
     if c_compiler() is None:
         ap.error("no C compiler (cc or gcc) on PATH")
     times, rows = closed_loop(args.starts, args.weights.resolve())
@@ -117,8 +122,8 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
          "MPC solver call / this": mpc_solver / np.median(t)}
         for name, t in times.items()
     ])
-    print(f"{args.starts} held-out starts, {len(rows)} states the expert visited")
-    print(table.to_markdown(index=False, floatfmt=".4g"))
+    write_stamped(args.md, f"{args.starts} held-out starts, {len(rows)} states the expert "
+                  f"visited\n\n{table.to_markdown(index=False, floatfmt='.4g')}", argv)
     return table
 
 

@@ -40,6 +40,7 @@ from mpclab.approx.train import TrainConf, train
 from mpclab.errors import exit_on_bad_input
 from mpclab.experiment import build_run, compose
 from mpclab.policy.mlp import MLP
+from mpclab.provenance import stamped
 from mpclab.record import jsonable
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -170,11 +171,13 @@ def main(argv: list[str] | None = None) -> None:
         rep = dataset.merge([work / "data"], data_path)
         print(f"dataset: {rep.rows} rows from {rep.runs} runs, {len(rep.missing)} runs "
               f"without rows, configs {rep.config_hashes}", flush=True)
-    try:
-        data, meta = dataset.read(data_path)
-    except FileNotFoundError as exc:  # stages after data, without it
-        exit_on_bad_input(ap, exc)
-    data["source"] = "expert runs"
+    data, meta = pd.DataFrame(), {}
+    if {"train", "dagger"} & set(stages):  # the evaluation alone needs no dataset
+        try:
+            data, meta = dataset.read(data_path)
+        except FileNotFoundError as exc:  # stages after data, without it
+            exit_on_bad_input(ap, exc)
+        data["source"] = "expert runs"
     history = []
     weights = work / "weights_round0.npz"
     if "train" in stages:
@@ -203,7 +206,7 @@ def main(argv: list[str] | None = None) -> None:
         shutil.copy(weights, pub / "weights.npz")
         (pub / "mpclab_nn.c").write_text(to_c(MLP.load(pub / "weights.npz")))
         pd.DataFrame(history).to_csv(pub / "training.csv", index=False)
-        (pub / "training.md").write_text(pd.DataFrame(history).to_markdown(index=False) + "\n")
+        (pub / "training.md").write_text(stamped(pd.DataFrame(history).to_markdown(index=False)))
     if "eval" in stages:
         run_eval(conf, pub / "weights.npz", work / "eval", pub)
     print(f"done in {time.perf_counter() - t0:.0f} s; results in {pub}", flush=True)
@@ -284,7 +287,7 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
         lines += ["## Layouts the net never saw (random starts)", "",
                   lt.to_markdown(index=False, floatfmt=".3g"), ""]
         summary["layouts"] = layout_rows
-    (pub / "evaluation.md").write_text("\n".join(lines))
+    (pub / "evaluation.md").write_text(stamped("\n".join(lines)))
     (pub / "evaluation.json").write_text(
         json.dumps(jsonable(summary), indent=2, allow_nan=False, default=str) + "\n"
     )

@@ -25,6 +25,7 @@ import pandas as pd
 import yaml
 
 from mpclab import record, stream
+from mpclab.provenance import stamped
 from mpclab.tables.groups import (
     _step_times_ms,
     group_keys,
@@ -338,5 +339,5 @@ def write_tables(
     df.to_parquet(paths["parquet"], index=False)
     df.to_csv(paths["csv"], index=False)
     groups.to_csv(paths["groups"], index=False)
-    paths["markdown"].write_text(markdown(df, groups))
+    paths["markdown"].write_text(stamped(markdown(df, groups)))
     return paths
