@@ -124,7 +124,7 @@ def test_memory_joins_points_nearer_than_the_link_and_keeps_them() -> None:
     assert mem.add(wall[:1] + 0.001)[0] == ids[0] and len(mem.points) == 9
     # a gap narrower than the link (the robot cannot pass) joins the two obstacles
     bridge = mem.add(np.array([[0.42, 0.0], [0.55, 0.0], [0.68, 0.0]]))
-    assert mem.find(int(ids[0])) == mem.find(int(ids[7])) == mem.find(int(bridge[0]))
+    assert mem.labels[ids[0]] == mem.labels[ids[7]] == mem.labels[bridge[0]]
 
 
 def test_the_hit_boundary_is_followed_and_handed_on_as_a_mask() -> None:

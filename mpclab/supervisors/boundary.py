@@ -88,26 +88,18 @@ class ObstacleMemory:
 
     A point is kept once per grid cell of ``cell``; two points nearer than ``link`` belong
     to one obstacle (the robot cannot pass between them), and the obstacles are the
-    connected sets (union-find, merged as points arrive). Unlike one scan, the memory keeps
-    the part of a boundary that has left the sensor's view, so the boundary followed stays
-    the obstacle that was hit, and another obstacle joins it only by a gap the robot cannot
-    pass.
+    connected sets: :attr:`labels` gives each point its obstacle, and a point that links
+    obstacles merges them. Unlike one scan, the memory keeps the part of a boundary that has
+    left the sensor's view, so the boundary followed stays the obstacle that was hit, and
+    another obstacle joins it only by a gap the robot cannot pass.
     """
 
     def __init__(self, link: float, cell: float = 0.01) -> None:
         self.link, self.cell = float(link), float(cell)
         self.points = np.zeros((0, 2))
-        self._parent: list[int] = []
+        #: ``(n_points,)``: the obstacle of each point
+        self.labels = np.zeros(0, dtype=int)
         self._cells: dict[tuple[int, int], int] = {}
-
-    def find(self, i: int) -> int:
-        """The obstacle (the root point's index) of point ``i``."""
-        root = i
-        while self._parent[root] != root:
-            root = self._parent[root]
-        while self._parent[i] != root:
-            self._parent[i], i = root, self._parent[i]
-        return root
 
     def add(self, detections: FloatArray) -> np.ndarray:
         """Remember ``detections`` ``(n, 2)``; return each one's point index ``(n,)``."""
@@ -115,21 +107,16 @@ class ObstacleMemory:
         ids = np.empty(len(det), dtype=int)
         for k, q in enumerate(det):
             key = (int(np.floor(q[0] / self.cell)), int(np.floor(q[1] / self.cell)))
-            if key in self._cells:
-                ids[k] = self._cells[key]
-                continue
-            i = len(self._parent)
-            near = (np.flatnonzero(np.linalg.norm(self.points - q, axis=1) < self.link)
-                    if i else np.zeros(0, dtype=int))
-            self.points = np.vstack([self.points, q])
-            self._parent.append(i)
-            self._cells[key] = i
-            for j in near:
-                self._parent[self.find(int(j))] = i
-            ids[k] = i
+            if key not in self._cells:
+                i = len(self.points)
+                near = self.labels[np.linalg.norm(self.points - q, axis=1) < self.link]
+                self.labels[np.isin(self.labels, near)] = i  # the obstacles it links: one
+                self.points = np.vstack([self.points, q])
+                self.labels = np.append(self.labels, i)
+                self._cells[key] = i
+            ids[k] = self._cells[key]
         return ids
 
     def obstacle(self, i: int) -> np.ndarray:
         """Mask ``(n_points,)`` of the points of point ``i``'s obstacle."""
-        root = self.find(i)
-        return np.array([self.find(j) == root for j in range(len(self._parent))], dtype=bool)
+        return self.labels == self.labels[i]

@@ -75,7 +75,8 @@ class Bug2(Supervisor):
         Also leave off the m-line when the goal is nearer than this and the corridor to it
         is free of detected points [m] (at most the sensor's range); 0: the m-line only.
     run_link
-        Detected points nearer than this to each other belong to one obstacle [m].
+        Detected points nearer than this to each other belong to one obstacle [m]; None:
+        twice ``clearance`` (a gap the path along a boundary cannot pass).
     path_speed
         > 0: in ``wall_follow``, the reference over the horizon is the path along the
         followed boundary, sampled at this speed [m/s]; 0: the scenario's (a term follows
@@ -104,7 +105,7 @@ class Bug2(Supervisor):
         mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
         goal_sight_range: float = 0.0,
-        run_link: float = 0.15,
+        run_link: float | None = None,
         path_speed: float = 0.0,
         clearance: float = 0.08,
         clearance_gain: float = 5.0,
@@ -128,10 +129,12 @@ class Bug2(Supervisor):
         self.leave_margin = number(leave_margin, "supervisor.leave_margin")
         self.sight = number(goal_sight_range, "supervisor.goal_sight_range (0: off)",
                             at_least=0)
-        self.run_link = number(run_link, "supervisor.run_link", above=0)
+
         self.path_speed = number(path_speed, "supervisor.path_speed (0: off)", at_least=0)
         self.clearance = number(clearance, "supervisor.clearance", above=0)
         self.clearance_gain = number(clearance_gain, "supervisor.clearance_gain", above=0)
+        self.run_link = (2 * self.clearance if run_link is None
+                         else number(run_link, "supervisor.run_link", above=0))
         self.side = parse_choice(Side, side, "supervisor.side")
         self.stuck_window = number(stuck_window, "supervisor.stuck_window (0: off)",
                                    at_least=0)
@@ -185,8 +188,7 @@ class Bug2(Supervisor):
             self._member = None
             self._progress.clear()
         if self._member is not None:
-            root = self.memory.find(self._member)
-            self.follow = np.array([float(self.memory.find(int(i)) == root) for i in ids])
+            self.follow = self.memory.obstacle(self._member)[ids].astype(float)
         else:
             self.follow = None
         self._last = p
