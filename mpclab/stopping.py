@@ -40,10 +40,21 @@ def _stop(signum: int, frame: FrameType | None) -> None:
 
 
 def default_stop_signals() -> None:
-    """The system's handling of SIGTERM and SIGHUP (the process ends): for a worker process
-    forked from one within :func:`signals_interrupt`."""
+    """The system's handling of SIGTERM and SIGHUP (the process ends)."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_DFL)
+
+
+def worker_signals() -> None:
+    """The signal handling of a sweep's worker process, whatever it inherited: SIGTERM and
+    SIGHUP end it as they end any process (the pool stops a worker with SIGTERM), and SIGINT
+    interrupts the job it runs (``KeyboardInterrupt``): the launching process passes a stop
+    on to its workers as SIGINT. Set explicitly because a process started with SIGINT
+    ignored (a background job ``cmd &`` of a shell script) keeps ignoring it, and so would
+    its workers: the jobs running when the sweep is stopped would run on to their end and
+    none would be recorded ``interrupted``."""
+    default_stop_signals()
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @contextlib.contextmanager

@@ -72,7 +72,7 @@ from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchd
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
-from mpclab.stopping import Terminated, default_stop_signals
+from mpclab.stopping import Terminated, worker_signals
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
@@ -123,11 +123,11 @@ def _init_worker(
 
 
 def _init_forked(*args: Any) -> None:
-    """:func:`_init_worker` for a worker process forked from the launching one: SIGTERM and
-    SIGHUP end it as they end any process (the launching process's handlers, which turn them
-    into an interrupt, are not inherited: the pool stops a worker with SIGTERM, and the
-    launching process passes an interrupt on to its workers as SIGINT)."""
-    default_stop_signals()
+    """:func:`_init_worker` for a worker process forked from the launching one, with a
+    worker's signal handling (:func:`~mpclab.stopping.worker_signals`), not the launching
+    process's: SIGTERM and SIGHUP end it (the pool stops a worker with SIGTERM), SIGINT
+    interrupts its job (the launching process passes a stop on to its workers as SIGINT)."""
+    worker_signals()
     _init_worker(*args)
 
 
@@ -135,7 +135,7 @@ def _init_pickled(blob: bytes, board_cells: Any = None) -> None:
     """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
     (Hydra's configs hold classes that the standard pickle cannot find by name); the shared
     ``board_cells`` apart (shared memory passes only as the process starts)."""
-    default_stop_signals()
+    worker_signals()
     _init_worker(*cloudpickle.loads(blob), board_cells=board_cells)
 
 
