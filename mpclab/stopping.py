@@ -47,14 +47,23 @@ def default_stop_signals() -> None:
 
 def worker_signals() -> None:
     """The signal handling of a sweep's worker process, whatever it inherited: SIGTERM and
-    SIGHUP end it as they end any process (the pool stops a worker with SIGTERM), and SIGINT
-    interrupts the job it runs (``KeyboardInterrupt``): the launching process passes a stop
-    on to its workers as SIGINT. Set explicitly because a process started with SIGINT
-    ignored (a background job ``cmd &`` of a shell script) keeps ignoring it, and so would
-    its workers: the jobs running when the sweep is stopped would run on to their end and
-    none would be recorded ``interrupted``."""
+    SIGHUP end it as they end any process (the pool stops a worker with SIGTERM); SIGINT is
+    ignored, except within :func:`interruptible` (around each job it runs)."""
     default_stop_signals()
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """Within this block SIGINT raises ``KeyboardInterrupt``, whatever it did before (then
+    restored). Set explicitly because a process started with SIGINT ignored (a background job
+    ``cmd &`` of a shell script) keeps ignoring it: a sweep's launcher passes a stop on to the
+    workers running a job as SIGINT, and such a job would run on to its end."""
+    saved = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
 
 
 @contextlib.contextmanager

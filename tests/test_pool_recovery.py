@@ -1,5 +1,6 @@
-"""The pool launcher's recovery parts alone: the job board, the time-limit watchdog, and
-jobs run each in a process of their own (``hydra_plugins/mpclab_launcher/recovery.py``)."""
+"""The pool launcher's recovery parts alone: the job board (also when the sweep stops), the
+time-limit watchdog, and jobs run each in a process of their own
+(``hydra_plugins/mpclab_launcher/recovery.py``)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 from hydra_plugins.mpclab_launcher import pool_launcher, recovery
 from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher, StartMethod
 from mpclab.errors import ConfigError
+from mpclab.stopping import worker_signals
 
 CTX = multiprocessing.get_context("fork")
 
@@ -69,6 +71,38 @@ def test_the_watchdog_stops_only_the_overdue_job() -> None:
     assert procs[2].is_alive()
     procs[2].kill()
     procs[2].join()
+
+
+def test_a_stopped_sweep_interrupts_the_running_job_and_starts_no_other() -> None:
+    """A worker ignores SIGINT between jobs (as it would inherit it from a process started as
+    a script's background job) and takes it as an interrupt within one."""
+    board = recovery.JobBoard.new(CTX, 2)
+    receive, send = CTX.Pipe(duplex=False)
+
+    def worker() -> None:
+        worker_signals()
+        os.kill(os.getpid(), signal.SIGINT)  # between jobs: ignored
+        for slot, seconds in ((0, 600.0), (1, 0.0)):
+            try:
+                with board.running(slot):
+                    time.sleep(seconds)
+                send.send((slot, "ran"))
+            except KeyboardInterrupt as exc:
+                send.send((slot, f"interrupted {exc}".strip()))
+
+    proc = CTX.Process(target=worker)
+    proc.start()
+    deadline = time.time() + 60
+    while not board.started(0) and time.time() < deadline:
+        time.sleep(0.01)
+    board.stop()
+    board.interrupt_running()
+    assert receive.poll(60)
+    assert [receive.recv(), receive.recv()] == [
+        (0, "interrupted"), (1, "interrupted the sweep stopped before this job started")]
+    proc.join(timeout=60)
+    assert proc.exitcode == 0 and board.stopped()
+    assert not board.overdue(0.0)  # no job is left running
 
 
 def test_a_bad_time_limit_is_one_message_naming_it() -> None:

@@ -143,10 +143,13 @@ def _run_one(
     idx: int, overrides: Sequence[str], slot: int | None = None,
 ) -> tuple[JobReturn, dict[str, Any]]:
     """Compose and run job ``idx`` in this worker; the result without its configs. ``slot``:
-    the job's place on the pool's board (None: no board)."""
+    the job's place on the pool's board (None: no board, as in the launching process)."""
     board = _WORKER.get("board") if slot is not None else None
-    if board is not None:
-        board.start(slot)
+    with board.running(slot) if board is not None else contextlib.nullcontext():
+        return _compose_and_run(idx, overrides)
+
+
+def _compose_and_run(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, Any]]:
     if _WORKER.setdefault("jobs", 0) == 1:
         # what the first job built stays: out of the garbage collector's way, so that
         # its full collections (tens of ms over the configs and solvers) do not recur
@@ -178,8 +181,6 @@ def _run_one(
     faults = None if faults0 is None else _faults() - faults0
     info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, "cpu_s": cpu_s,
             "minor_faults": faults, **timing}
-    if board is not None:
-        board.end(slot)
     return ret, info
 
 
@@ -361,6 +362,7 @@ class PoolLauncher(Launcher):
                         log.error("job %d: its worker could not return it: %r", idx, exc)
                         results[idx] = self._error_row(idx, overrides, exc, {"job": idx})
         except BaseException as exc:
+            board.stop()  # the jobs queued for the workers do not start
             if isinstance(exc, Terminated):  # Ctrl-C reaches the workers too; a signal
                 board.interrupt_running()    # sent to this process alone is passed on
             pool.shutdown(wait=True, cancel_futures=True)

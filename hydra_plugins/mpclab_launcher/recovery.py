@@ -5,7 +5,9 @@ pid of the worker that started it (negative once the job ended) and when it star
 worker dies, the pool is broken and every job not yet done is lost with it; the board tells
 the jobs that were running (to run again, each in a process of its own: :func:`each_alone`)
 from those never started (to run on a new pool). :class:`Watchdog` stops the worker of a job
-that runs longer than ``hydra.launcher.job_timeout_s``.
+that runs longer than ``hydra.launcher.job_timeout_s``. When the sweep is stopped (Ctrl-C,
+SIGTERM), the board says so: the jobs already queued for the workers do not start, and the
+running ones are interrupted (:meth:`JobBoard.running`, :meth:`JobBoard.interrupt_running`).
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
+
+from mpclab.stopping import interruptible
 
 log = logging.getLogger(__name__)
 
@@ -47,18 +51,43 @@ class Lost:
 
 class JobBoard:
     """Per job (its slot): the pid of the worker running it, negative once it ended, 0
-    before it started; and when it started (``time.time()``), in the shared array
-    :attr:`cells`. A worker gets the array when it starts (a forked one inherits it) and
-    wraps it again: the board itself is not pickled, since Hydra's plugin scan runs this
-    module again and a pickled instance of the first run's class would not be found."""
+    before it started; and when it started (``time.time()``); last, whether the sweep
+    stopped (:meth:`stop`); in the shared array :attr:`cells`. A worker gets the array when
+    it starts (a forked one inherits it) and wraps it again: the board itself is not
+    pickled, since Hydra's plugin scan runs this module again and a pickled instance of the
+    first run's class would not be found."""
 
     def __init__(self, cells: Any) -> None:
         self.cells = cells
+        self.n_jobs = len(cells) // 2
 
     @classmethod
     def new(cls, ctx: Any, n_jobs: int) -> JobBoard:
         """A board of ``n_jobs`` jobs, none started, in shared memory of context ``ctx``."""
-        return cls(ctx.RawArray("d", 2 * n_jobs))
+        return cls(ctx.RawArray("d", 2 * n_jobs + 1))
+
+    @contextlib.contextmanager
+    def running(self, slot: int) -> Iterator[None]:
+        """Job ``slot`` runs in this worker within this block: noted on the board, and
+        SIGINT interrupts it (:func:`~mpclab.stopping.interruptible`; between jobs a worker
+        ignores SIGINT). A job that would start once the sweep has stopped does not: it
+        raises ``KeyboardInterrupt`` at once (no row; the same command runs it)."""
+        try:
+            with interruptible():
+                self.start(slot)
+                if self.stopped():  # after start: a stop is seen here or finds the job running
+                    raise KeyboardInterrupt("the sweep stopped before this job started")
+                yield
+        finally:  # SIGINT ignored again: the job is over, an interrupt would hit the worker
+            self.end(slot)
+
+    def stop(self) -> None:
+        """The sweep stops: its workers start no job after this."""
+        self.cells[2 * self.n_jobs] = 1
+
+    def stopped(self) -> bool:
+        """Whether the sweep stopped (:meth:`stop`)."""
+        return self.cells[2 * self.n_jobs] != 0
 
     def start(self, slot: int) -> None:
         self.cells[2 * slot + 1] = time.time()
@@ -72,8 +101,8 @@ class JobBoard:
 
     def interrupt_running(self) -> None:
         """Send SIGINT to the worker of every running job (it ends ``interrupted``, its
-        steps so far recorded, as on Ctrl-C)."""
-        for pid in {int(self.cells[2 * slot]) for slot in range(len(self.cells) // 2)}:
+        steps so far recorded, as on Ctrl-C); call :meth:`stop` first."""
+        for pid in {int(self.cells[2 * slot]) for slot in range(self.n_jobs)}:
             if pid > 0:
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(pid, signal.SIGINT)
@@ -81,7 +110,7 @@ class JobBoard:
     def overdue(self, timeout_s: float) -> list[tuple[int, int]]:
         """``(slot, pid)`` of every job running for longer than ``timeout_s``."""
         now, cells = time.time(), self.cells
-        return [(slot, int(cells[2 * slot])) for slot in range(len(cells) // 2)
+        return [(slot, int(cells[2 * slot])) for slot in range(self.n_jobs)
                 if cells[2 * slot] > 0 and now - cells[2 * slot + 1] > timeout_s]
 
 
