@@ -7,7 +7,7 @@ import pytest
 
 from mpclab.errors import ConfigError
 from mpclab.plants.zumo import Zumo
-from mpclab.supervisors.boundary import ObstacleMemory, Side, streamline
+from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
 from mpclab.supervisors.bug2 import Bug2
 
 GO = frozenset({"J1", "J2", "J3", "J4"})
@@ -145,15 +145,24 @@ def test_the_hit_boundary_is_followed_and_handed_on_as_a_mask() -> None:
 
 def test_the_path_keeps_the_clearance_along_a_wall_and_rounds_its_end() -> None:
     wall = np.c_[np.linspace(-1.0, 0.0, 201), np.zeros(201)]     # ends at the origin
-    path = streamline(np.array([-0.6, 0.12]), wall, 0.08, Side.right, 0.01, 120)
+    path = offset_path(np.array([-0.6, 0.1]), wall, 0.08, Side.right, 0.01, 120, heading=0.0)
     dist = np.min(np.linalg.norm(path[:, None, :2] - wall[None], axis=2), axis=1)
-    # it closes in on the clearance, then keeps it, with the wall on its right (+x first)
-    assert np.all(np.abs(dist[30:55] - 0.08) < 0.003) and np.all(np.abs(dist[30:] - 0.08) < 0.01)
-    assert path[10, 0] > path[0, 0] and abs(path[10, 2]) < 0.5
+    # on the clearance from the first point on, with the wall on its right (+x first)
+    assert np.all(np.abs(dist[1:] - 0.08) < 0.002)
+    assert path[10, 0] > path[0, 0] and abs(path[10, 2]) < 0.1
     # round the end on a circle of that radius, and back along the wall's other side
-    assert path[-1, 1] < -0.07 and path[-1, 0] < -0.05 and abs(abs(path[-1, 2]) - np.pi) < 0.3
-    left = streamline(np.array([-0.6, 0.08]), wall, 0.08, Side.left, 0.01, 10)
+    assert path[-1, 1] < -0.07 and path[-1, 0] < -0.05 and abs(abs(path[-1, 2]) - np.pi) < 0.1
+    left = offset_path(np.array([-0.6, 0.08]), wall, 0.08, Side.left, 0.01, 10, heading=np.pi)
     assert left[-1, 0] < -0.65                                     # the other way round
+    # in a corridor both walls' lines are near: the robot joins the one with its wall on
+    # the followed side of its heading, either way it faces
+    upper = wall + [0.0, 0.2]
+    both = np.vstack([wall, upper])
+    east = offset_path(np.array([-0.6, 0.1]), both, 0.08, Side.right, 0.01, 20, heading=0.0)
+    west = offset_path(np.array([-0.6, 0.1]), both, 0.08, Side.right, 0.01, 20,
+                       heading=np.pi)
+    assert east[-1, 0] > -0.45 and abs(east[-1, 1] - 0.08) < 0.002
+    assert west[-1, 0] < -0.75 and abs(west[-1, 1] - 0.12) < 0.002
 
 
 def test_the_supervisor_hands_over_the_path_only_while_following() -> None:
@@ -167,6 +176,56 @@ def test_the_supervisor_hands_over_the_path_only_while_following() -> None:
     ref = sup.target(0.2, 10, 0.2)
     assert ref.shape == (11, 3) and np.allclose(ref[0, :2], [0.4, 0.85])
     step = np.linalg.norm(np.diff(ref[:, :2], axis=0), axis=1)
-    assert np.all(np.abs(step - 0.03) < 0.005)                     # 0.15 m/s for 0.2 s
-    # the wall (below) on the right: the path runs in +x, toward the clearance
-    assert ref[-1, 0] > 0.6 and abs(ref[-1, 1] - 0.83) < 0.01
+    assert np.all(np.abs(step[1:] - 0.03) < 0.002)                 # 0.15 m/s for 0.2 s
+    # the wall (below) on the right: the path runs in +x, on the clearance
+    assert ref[-1, 0] > 0.6 and np.allclose(ref[1:, 1], 0.83, atol=0.005)
+
+
+def test_a_pocket_is_traced_around_not_circled() -> None:
+    # a pocket of the random layout 305: a wall end on the left, another on the right, a
+    # wall below and a small disc, all nearer each other than twice the clearance; the
+    # robot sits where they are all about 0.1 m away, heading into the pocket
+    discs = [(0.296, 0.614, 0.05), (0.343, 0.624, 0.05), (0.603, 0.677, 0.05),
+             (0.632, 0.683, 0.05), (0.660, 0.689, 0.05), (0.614, 0.354, 0.05),
+             (0.629, 0.401, 0.05), (0.643, 0.447, 0.05), (0.433, 0.504, 0.019)]
+    ang = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    points = np.vstack([np.c_[cx + r * np.cos(ang), cy + r * np.sin(ang)]
+                        for cx, cy, r in discs])
+    p = np.array([0.497, 0.593])
+    path = offset_path(p, points, 0.08, Side.right, 0.03, 20, heading=3.59)
+    assert np.linalg.norm(path[-1, :2] - p) > 0.25
+    dist = np.min(np.linalg.norm(path[1:, None, :2] - points[None], axis=2), axis=1)
+    assert np.all(np.abs(dist - 0.08) < 0.002)
+
+
+def test_a_gap_narrower_than_twice_the_clearance_is_not_passed() -> None:
+    # along the underside of a wall (on the right, heading -x); 0.15 m below it the top of
+    # another wall: the memory links the two (0.15 < 2 x 0.08), so the path turns down the
+    # second wall's near side instead of passing between them
+    top = np.c_[np.linspace(-1.0, 1.0, 201), np.zeros(201)]
+    stem = np.c_[np.zeros(46), np.linspace(-0.15, -0.6, 46)]
+    points = np.vstack([top, stem])
+    path = offset_path(np.array([0.6, -0.08]), points, 0.08, Side.right, 0.01, 100,
+                       heading=np.pi)
+    assert np.all(path[:, 0] > 0.035) and path[-1, 1] < -0.4
+
+
+def test_a_pocket_whose_way_out_is_narrow_is_left_at_a_lower_clearance() -> None:
+    # a box 0.3 m wide, its mouth 0.15 m wide (closed at a clearance of 0.08, open at
+    # 0.07); the robot inside: the path at 0.08 circles inside, at 0.07 it leads out
+    side = np.linspace(0.0, 0.3, 31)
+    box = np.vstack([np.c_[side, np.zeros(31)], np.c_[np.zeros(31), side],
+                     np.c_[np.full(31, 0.3), side],
+                     np.c_[np.linspace(0.0, 0.075, 9), np.full(9, 0.3)],
+                     np.c_[np.linspace(0.225, 0.3, 9), np.full(9, 0.3)]])
+    p = np.array([0.15, 0.12])
+    trapped = offset_path(p, box, 0.08, Side.right, 0.03, 40, heading=0.0)
+    assert np.all(trapped[:, 1] < 0.3)
+    out = offset_path(p, box, 0.08, Side.right, 0.03, 40, heading=0.0, least=0.07)
+    assert np.max(out[:, 1]) > 0.35
+    # in the mouth, heading in: the pocket is not joined, the line outside is
+    for heading in (-np.pi / 2, -np.pi / 4, -3 * np.pi / 4):
+        mouth = offset_path(np.array([0.15, 0.3]), box, 0.08, Side.right, 0.03, 20,
+                            heading=heading)
+        inner = (np.abs(mouth[1:, :2] - 0.15) < 0.15).all(axis=1)
+        assert not inner.any()

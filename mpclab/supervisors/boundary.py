@@ -1,28 +1,36 @@
-"""Boundary following as geometry: a path along a boundary at a set clearance.
+"""Boundary following as geometry: the path along a boundary at a set clearance.
 
-The boundary is a set of points (the detected points of the obstacle being followed). At a
-position ``p`` the field is the boundary's tangent, turned so that the boundary lies on the
-robot's ``side``, plus a correction along the boundary's normal that restores the
-``clearance``::
+The boundary is a set of points (the remembered detected points of the obstacle being
+followed). The path at ``clearance`` from it is the level set ``d(q) = clearance`` of the
+distance ``d`` from a position ``q`` to the nearest point, walked with the boundary on the
+robot's ``side``. It keeps the clearance along straight stretches, rounds a convex corner (an
+end of a wall) on a circle of that radius, and cuts a concave one; and it never passes
+between two points less than twice the clearance apart, the gap the obstacle memory treats as
+closed (its discs of that radius overlap), so the boundary followed is the outline of the
+obstacle as the memory links it. The level set is traced on a grid of ``cell`` about the
+robot (marching squares, by ``contourpy``, on the distances from a k-d tree), so a pocket or a
+junction of walls is traced around rather than circled.
 
-    v(p) = t(p) + gain clip((clearance - d(p)) / clearance, -1, 1) n(p)
+The robot joins the level line whose nearest point is nearest to it, counting a line that
+runs against its heading as farther (in a corridor both walls' lines are near: the one with
+its wall on the followed side is taken). A pocket whose way out is narrower than twice the
+clearance (a gap the robot passed before the memory linked its sides) is a closed line
+around the robot with free space inside; there the clearance is lowered, down to ``least``,
+until the line leads out. A pocket the robot is not in is never joined.
 
-where ``d`` is the distance to the nearest point and ``n`` the unit vector from the points
-to ``p`` (soft-minimum weighted, so that the field does not jump between two points of a
-sparse scan). Its streamline from ``p`` keeps the clearance along straight stretches, rounds
-a convex corner (an end of a wall) on a circle of that radius, and turns away before a
-concave one (another part of the boundary comes nearer). The gain is high (5 by default):
-where several parts of a boundary are about the clearance away (a junction of walls), a
-weak correction leaves the tangents to circle the spot, and the path with them. Sampled at a speed times the controller's period, the streamline is a reference
-over the horizon: a controller tracking it follows the boundary.
+Sampled at a speed times the controller's period, the path is a reference over the horizon:
+a controller tracking it follows the boundary.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import StrEnum
 
+import contourpy
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -34,53 +42,139 @@ class Side(StrEnum):
     left = "left"
 
 
-def nearest(p: FloatArray, points: FloatArray, tau: float = 0.01) -> tuple[float, FloatArray]:
-    """``(d, n)``: the distance from ``p`` ``(2,)`` to the nearest of ``points`` ``(n, 2)``
-    (``n >= 1``) and the mean of the unit vectors from them to ``p``, weighted as a soft
-    minimum of the distances weighs them (smoothing length ``tau``; shorter than 1 where
-    near points lie on opposite sides)."""
-    rel = p[None, :] - points
-    dist = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)
-    w = np.exp(-(dist - dist.min()) / tau)
-    n = ((w / w.sum())[:, None] * rel / dist[:, None]).sum(axis=0)
-    return float(dist.min()), n
+#: how much farther a level line whose direction is opposite to the robot's heading counts
+#: when the robot chooses the line to join [m] (half of it at right angles)
+AGAINST_HEADING = 0.05
 
 
-def boundary_field(
-    p: FloatArray, points: FloatArray, clearance: float, side: Side, gain: float = 5.0,
-) -> FloatArray:
-    """The unit direction of the field at ``p`` ``(2,)`` along ``points`` ``(n, 2)``
-    (``gain``: the weight of the correction toward the clearance)."""
-    d, n = nearest(p, points)
-    n = n / max(float(np.linalg.norm(n)), 1e-12)
-    t = np.array([n[1], -n[0]]) if side is Side.right else np.array([-n[1], n[0]])
-    v = t + gain * float(np.clip((clearance - d) / clearance, -1.0, 1.0)) * n
-    return v / max(float(np.linalg.norm(v)), 1e-12)
+@dataclass(frozen=True)
+class DistanceGrid:
+    """The distance to the nearest of some points, sampled on a square grid."""
+
+    xs: FloatArray
+    ys: FloatArray
+    #: ``(len(ys), len(xs))``, capped at ``cap``
+    dist: FloatArray
+    tree: cKDTree
+
+    @classmethod
+    def around(cls, points: FloatArray, centre: FloatArray, radius: float, cell: float,
+               cap: float) -> DistanceGrid:
+        """The grid of ``cell`` over the square of half-side ``radius`` about ``centre``."""
+        xs = np.arange(centre[0] - radius, centre[0] + radius + cell, cell)
+        ys = np.arange(centre[1] - radius, centre[1] + radius + cell, cell)
+        tree = cKDTree(points)
+        grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+        dist, _ = tree.query(grid, distance_upper_bound=cap)
+        return cls(xs, ys, np.minimum(dist, cap).reshape(len(ys), len(xs)), tree)
+
+    def level_lines(self, level: float, side: Side) -> list[FloatArray]:
+        """The level lines ``d = level`` (< the cap), each ``(k, 2)`` without repeated
+        vertices and oriented with the points on ``side`` (a closed line: first = last)."""
+        gen = contourpy.contour_generator(self.xs, self.ys, self.dist, line_type="Separate")
+        lines = []
+        for line in gen.lines(level):
+            line = np.asarray(line, dtype=float)
+            line = line[np.r_[True, np.linalg.norm(np.diff(line, axis=0), axis=1) > 1e-9]]
+            if len(line) < 2:
+                continue
+            # orient: the points on the followed side of most steps
+            step = np.diff(line, axis=0)
+            mid = 0.5 * (line[1:] + line[:-1])
+            away = mid - self.tree.data[self.tree.query(mid)[1]]  # the way d grows
+            left = step[:, 0] * away[:, 1] - step[:, 1] * away[:, 0]
+            on_right = float(np.sum(left > 0)) >= 0.5 * len(left)
+            lines.append(line if on_right == (side is Side.right) else line[::-1])
+        return lines
 
 
-def streamline(
+def encloses_free_space(line: FloatArray, side: Side) -> bool:
+    """Whether a closed oriented level line has the free side inside (a pocket): walked
+    with the boundary on the right it then turns counter-clockwise."""
+    if len(line) < 4 or np.linalg.norm(line[0] - line[-1]) > 1e-6:
+        return False
+    area = 0.5 * float(np.sum(line[:-1, 0] * line[1:, 1] - line[1:, 0] * line[:-1, 1]))
+    return area > 0 if side is Side.right else area < 0
+
+
+def inside(p: FloatArray, polygon: FloatArray) -> bool:
+    """Whether ``p`` lies inside the closed ``polygon`` ``(k, 2)`` (even-odd rule)."""
+    x, y = polygon[:-1].T
+    x2, y2 = polygon[1:].T
+    crosses = (y > p[1]) != (y2 > p[1])
+    at = x + (p[1] - y) * (x2 - x) / np.where(y2 != y, y2 - y, 1e-12)
+    return bool(np.sum(crosses & (p[0] < at)) % 2)
+
+
+def join(p: FloatArray, heading: FloatArray | None,
+         lines: list[FloatArray]) -> tuple[int, int] | None:
+    """``(line, vertex)``: where the robot at ``p`` joins the level lines (see the module
+    docstring); None without lines."""
+    best, where = np.inf, None
+    for i, line in enumerate(lines):
+        dist = np.linalg.norm(line - p, axis=1)
+        if heading is not None:
+            step = np.diff(line, axis=0, append=line[-1:] + (line[-1:] - line[-2:-1]))
+            step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
+            dist = dist + AGAINST_HEADING * 0.5 * (1.0 - step @ heading)
+        j = int(np.argmin(dist))
+        if dist[j] < best:
+            best, where = float(dist[j]), (i, j)
+    return where
+
+
+def walk(line: FloatArray, start: int, spacing: float, n: int) -> FloatArray:
+    """``(n, 3)``: the points every ``spacing`` of arc length along ``line`` after vertex
+    ``start`` (around again on a closed line; held at the end of an open one), each with the
+    line's direction there [rad]."""
+    closed = np.linalg.norm(line[0] - line[-1]) < 1e-6
+    seq = np.vstack([line[start:], line[1:start + 1]]) if closed else line[start:]
+    if len(seq) < 2:
+        seq = line[-2:]
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(seq, axis=0), axis=1))]
+    want = spacing * np.arange(1, n + 1)
+    if closed and arc[-1] > 0:
+        want = np.mod(want, arc[-1])
+    want = np.minimum(want, arc[-1])
+    k = np.clip(np.searchsorted(arc, want, side="right") - 1, 0, len(seq) - 2)
+    frac = ((want - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-12))[:, None]
+    xy = seq[k] + frac * (seq[k + 1] - seq[k])
+    d = seq[k + 1] - seq[k]
+    return np.c_[xy, np.arctan2(d[:, 1], d[:, 0])]
+
+
+def offset_path(
     p: FloatArray, points: FloatArray, clearance: float, side: Side, spacing: float, n: int,
-    gain: float = 5.0, step: float = 0.01,
+    heading: float | None = None, least: float | None = None, cell: float = 0.005,
+    anchor: FloatArray | None = None,
 ) -> FloatArray:
-    """``(n + 1, 3)``: ``p`` and the points every ``spacing`` of arc length along the field's
-    streamline from it (steps of at most ``step``, midpoint rule), each with the direction
-    of travel there [rad] (the first: the direction at ``p``)."""
-    q = np.asarray(p, dtype=float).reshape(2).copy()
+    """``(n + 1, 3)``: ``p`` and the points every ``spacing`` of arc length along the level
+    line ``d = clearance`` of ``points`` ``(m, 2)`` that the robot at ``p`` with ``heading``
+    [rad] joins, each with the direction of travel there [rad] (the first: the direction at
+    the joining point). In a pocket the clearance is lowered by ``cell`` steps down to
+    ``least`` (default: the clearance; module docstring). With ``anchor`` ``(2,)`` the
+    line is joined nearest to it instead of to ``p``."""
+    q = np.asarray(p, dtype=float).reshape(2)
     pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    sub = max(1, int(np.ceil(spacing / step)))
-    h = spacing / sub
-
-    def field(at: FloatArray) -> FloatArray:
-        return boundary_field(at, pts, clearance, side, gain)
-
-    v = field(q)
-    out = [(q[0], q[1], np.arctan2(v[1], v[0]))]
-    for _ in range(n):
-        for _ in range(sub):
-            v = field(q + 0.5 * h * field(q))
-            q = q + h * v
-        out.append((q[0], q[1], np.arctan2(v[1], v[0])))
-    return np.array(out)
+    u = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
+    floor = clearance if least is None else min(least, clearance)
+    radius = n * spacing + 2 * clearance + 3 * cell
+    grid = DistanceGrid.around(pts, q, radius, cell, cap=2 * clearance)
+    level, path = clearance, None
+    while path is None:
+        # a pocket the robot is not in is not a way on: it is walled off at this level
+        lines = [line for line in grid.level_lines(level, side)
+                 if not encloses_free_space(line, side) or inside(q, line)]
+        where = join(q if anchor is None else np.asarray(anchor, dtype=float), u, lines)
+        if where is None:                       # no line: hold the position
+            return np.tile(np.r_[q, heading or 0.0], (n + 1, 1))
+        line = lines[where[0]]
+        pocket = encloses_free_space(line, side) and inside(q, line)
+        if not pocket or level - cell < floor - 1e-12:
+            ahead = walk(line, where[1], spacing, n)
+            path = np.vstack([np.r_[q, ahead[0, 2]], ahead])
+        level -= cell
+    return path
 
 
 class ObstacleMemory:

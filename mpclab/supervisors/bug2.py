@@ -40,7 +40,7 @@ from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 from mpclab.supervisors.base import FloatArray, Supervisor
-from mpclab.supervisors.boundary import ObstacleMemory, Side, streamline
+from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
 
 
 class Bug2Mode(StrEnum):
@@ -83,8 +83,9 @@ class Bug2(Supervisor):
         the wall).
     clearance
         The path's distance from the followed boundary's detected points [m].
-    clearance_gain
-        How hard the path turns toward that distance (the field's ``gain``).
+    least_clearance
+        In a pocket whose way out is narrower than twice ``clearance`` the path's distance
+        is lowered down to this [m] (:mod:`~mpclab.supervisors.boundary`).
     side
         ``right`` or ``left``: the side of the robot the followed boundary stays on.
     stuck_window
@@ -108,7 +109,7 @@ class Bug2(Supervisor):
         run_link: float | None = None,
         path_speed: float = 0.0,
         clearance: float = 0.08,
-        clearance_gain: float = 5.0,
+        least_clearance: float = 0.07,
         side: Side | str = Side.right,
         stuck_window: float = 0.0,
         stuck_progress: float = 0.02,
@@ -132,7 +133,8 @@ class Bug2(Supervisor):
 
         self.path_speed = number(path_speed, "supervisor.path_speed (0: off)", at_least=0)
         self.clearance = number(clearance, "supervisor.clearance", above=0)
-        self.clearance_gain = number(clearance_gain, "supervisor.clearance_gain", above=0)
+        self.least_clearance = number(least_clearance, "supervisor.least_clearance",
+                                      above=0)
         self.run_link = (2 * self.clearance if run_link is None
                          else number(run_link, "supervisor.run_link", above=0))
         self.side = parse_choice(Side, side, "supervisor.side")
@@ -163,6 +165,7 @@ class Bug2(Supervisor):
         self._heading: float | None = None
         self.memory = ObstacleMemory(self.run_link)
         self._member: int | None = None  # a point of the obstacle followed
+        self._path: FloatArray | None = None  # the last path handed on by target
         self.follow = None
 
     def update(
@@ -182,6 +185,7 @@ class Bug2(Supervisor):
                 self.hit_point = p.copy()
                 self.hits.append((float(t), float(p[0]), float(p[1])))
                 self._member = int(ids[block[np.argmin(np.linalg.norm(det[block] - p, axis=1))]])
+                self._path = None
         elif self.can_leave(p, self._last) or self.goal_in_sight(p, det):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
@@ -212,8 +216,15 @@ class Bug2(Supervisor):
         points = self.followed()
         if not len(points):
             return None
-        path = streamline(self._last, points, self.clearance, self.side,
-                          self.path_speed * dt, horizon, self.clearance_gain)
+        # join the path where the last one said the robot would be now, if it is near:
+        # the line followed stays the same where two are about as near (in a gap)
+        was = self._path
+        anchor = (was[1, :2] if was is not None and
+                  np.linalg.norm(was[1, :2] - self._last) < self.clearance else None)
+        path = offset_path(self._last, points, self.clearance, self.side,
+                           self.path_speed * dt, horizon, heading=self._heading,
+                           least=self.least_clearance, anchor=anchor)
+        self._path = path
         ref = np.tile(self._goal_state, (horizon + 1, 1))
         ref[:, self._ip] = path[:, :2]
         if self._ith is not None:  # unwrapped from the robot's heading
