@@ -8,8 +8,8 @@ end of a wall) on a circle of that radius, and cuts a concave one; and it never 
 between two points less than twice the clearance apart, the gap the obstacle memory treats as
 closed (its discs of that radius overlap), so the boundary followed is the outline of the
 obstacle as the memory links it. The level set is traced on a grid of ``cell`` about the
-robot (marching squares, by ``contourpy``, on the distances from a k-d tree), so a pocket or a
-junction of walls is traced around rather than circled.
+robot (marching squares, by ``contourpy``), so a pocket or a junction of walls is traced
+around rather than circled.
 
 The robot joins the level line whose nearest point is nearest to it, counting a line that
 runs against its heading as farther (in a corridor both walls' lines are near: the one with
@@ -30,7 +30,6 @@ from enum import StrEnum
 import contourpy
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -55,18 +54,25 @@ class DistanceGrid:
     ys: FloatArray
     #: ``(len(ys), len(xs))``, capped at ``cap``
     dist: FloatArray
-    tree: cKDTree
+    points: FloatArray
 
     @classmethod
     def around(cls, points: FloatArray, centre: FloatArray, radius: float, cell: float,
                cap: float) -> DistanceGrid:
-        """The grid of ``cell`` over the square of half-side ``radius`` about ``centre``."""
+        """The grid of ``cell`` over the square of half-side ``radius`` about ``centre``:
+        each point lowers the distances within ``cap`` of it (a window of the grid)."""
         xs = np.arange(centre[0] - radius, centre[0] + radius + cell, cell)
         ys = np.arange(centre[1] - radius, centre[1] + radius + cell, cell)
-        tree = cKDTree(points)
-        grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
-        dist, _ = tree.query(grid, distance_upper_bound=cap)
-        return cls(xs, ys, np.minimum(dist, cap).reshape(len(ys), len(xs)), tree)
+        dist = np.full((len(ys), len(xs)), float(cap))
+        reach = int(np.ceil(cap / cell))
+        for px, py in points:
+            i, j = int(round((px - xs[0]) / cell)), int(round((py - ys[0]) / cell))
+            i0, i1 = max(i - reach, 0), min(i + reach + 1, len(xs))
+            j0, j1 = max(j - reach, 0), min(j + reach + 1, len(ys))
+            if i0 < i1 and j0 < j1:
+                near = np.hypot(xs[None, i0:i1] - px, ys[j0:j1, None] - py)
+                np.minimum(dist[j0:j1, i0:i1], near, out=dist[j0:j1, i0:i1])
+        return cls(xs, ys, np.minimum(dist, cap), np.asarray(points, dtype=float))
 
     def level_lines(self, level: float, side: Side) -> list[FloatArray]:
         """The level lines ``d = level`` (< the cap), each ``(k, 2)`` without repeated
@@ -81,7 +87,9 @@ class DistanceGrid:
             # orient: the points on the followed side of most steps
             step = np.diff(line, axis=0)
             mid = 0.5 * (line[1:] + line[:-1])
-            away = mid - self.tree.data[self.tree.query(mid)[1]]  # the way d grows
+            nearest = np.argmin(
+                np.linalg.norm(mid[:, None, :] - self.points[None], axis=2), axis=1)
+            away = mid - self.points[nearest]                 # the way d grows
             left = step[:, 0] * away[:, 1] - step[:, 1] * away[:, 0]
             on_right = float(np.sum(left > 0)) >= 0.5 * len(left)
             lines.append(line if on_right == (side is Side.right) else line[::-1])
