@@ -12,6 +12,7 @@ from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
 from mpclab.controllers.cvxpy import CvxpyMPC
+from mpclab.controllers.cvxpy_sl import model_through
 from mpclab.errors import ConfigError
 from mpclab.experiment import run_experiment
 from mpclab.objectives.base import Objective, TermContext
@@ -44,7 +45,7 @@ def _cvxpy(mode: str | None, **kw) -> CvxpyMPC:
                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
 
 
-def _ctx(points, x=X0) -> StepContext:
+def _ctx(points) -> StepContext:
     return StepContext(goal=GOAL, target=np.tile(GOAL, (T + 1, 1)),
                        detections=np.asarray(points, dtype=float).reshape(-1, 2))
 
@@ -126,6 +127,17 @@ def test_detections_are_parameters_of_a_problem_compiled_once() -> None:
     for points in (WALL, DISC, np.zeros((0, 2)), WALL[:3]):
         assert mpc.step(0.0, X0, _ctx(points)).ok
     assert mpc.direct is direct    # the compiled data of construction served every step
+
+
+def test_the_model_moved_through_its_own_rollout_is_the_model() -> None:
+    # the second-order correction's model meets a given rollout; the model linearized about
+    # a rollout already meets it (c_k = F(x_k, u_k) - A_k x_k - B_k u_k)
+    mpc = _cvxpy("soft")
+    U = np.tile([3.0, 5.0], (T, 1))
+    pt = mpc.iteration.with_model(mpc.iteration.point(X0, U, np.tile(GOAL, (T + 1, 1)).T,
+                                                      np.zeros(2)),
+                                  X0, np.tile(GOAL, (T + 1, 1)).T, np.zeros(2))
+    assert model_through(pt.model, pt.X, U) == pytest.approx(pt.model, abs=1e-12)
 
 
 def test_more_detections_than_room_keep_the_nearest() -> None:

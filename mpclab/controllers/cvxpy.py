@@ -307,7 +307,7 @@ class CvxpyMPC(Controller):
         assign(self.p_target, ctx.target.T)
         assign(self.p_u_prev, self.previous_input)
         if self.limits:
-            self.limits.at_step(x, ctx.detections, ctx.follow)
+            self.limits.at_step(x, ctx.detections)
         step = self._one_pass(x) if self.sl is SlMode.one_pass else self._converge(x, ctx)
         if self.limits and step.ok:
             self.limits.record(step.x_pred)
@@ -366,8 +366,7 @@ class CvxpyMPC(Controller):
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         """The linearization scheme; with constraints, theirs and their slacks."""
-        extra = self.limits.log.metrics(self.limits.constraints) if self.limits else {}
-        return {"sl": self.sl.value, **extra}
+        return {"sl": self.sl.value, **(self.limits.metrics() if self.limits else {})}
 
     def _trust_region_qp(self, bar: Point, r: float, through: Point | None = None,
                          ) -> QPSolution:
@@ -398,4 +397,3 @@ def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint
     if hi:
         cons.append(V[hi, :] <= ub[hi][:, None])
     return cons
-

@@ -100,11 +100,11 @@ class QPConstraints:
                       start=cp.Constant(0.0))
         return rows, penalty
 
-    def at_step(self, x: FloatArray, detections: Any, follow: Any = None) -> None:
-        """Keep this step's measured state and detections (padded)."""
+    def at_step(self, x: FloatArray, detections: Any) -> None:
+        """Keep this step's measured state and detections ``(n, 2)`` (padded)."""
         self._x0 = np.asarray(x, dtype=float)
         self._det, self._mask, _ = pad_detections(self.plant, self._x0, detections,
-                                                  self.max_detections, follow)
+                                                  self.max_detections)
 
     def linearize(self, X: FloatArray) -> None:
         """Set the parameters for a QP linearized about the trajectory ``X (T+1, nx)``."""
@@ -128,3 +128,7 @@ class QPConstraints:
         soft = [v for v in soft if v is not None]
         if soft:
             self.log.add(max(float(v.max(initial=0.0)) for v in soft))
+
+    def metrics(self) -> dict[str, Any]:
+        """The constraints and their slacks, for the summary."""
+        return self.log.metrics(self.constraints)

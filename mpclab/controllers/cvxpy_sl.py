@@ -22,6 +22,9 @@ corrected once (a second-order correction): the same QP with the dynamics model 
 the step's rollout (``A_k, B_k`` kept, ``c_k`` such that the model meets the rollout,
 :func:`model_through`) and the constraints linearized about that rollout, judged against
 the first QP's prediction (``zumo_cvxpy_wall``: 25 of 25 steps converged, 23 without it).
+A QP the linearized constraints leave infeasible even without the trust region (linearized
+about a rollout through an obstacle) is posed again about standing still (zero input), which
+keeps every distance it has.
 """
 
 from __future__ import annotations
