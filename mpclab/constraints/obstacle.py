@@ -29,10 +29,11 @@ about the trajectory the successive linearization linearizes the dynamics about:
     n_{k,i}' (p_k - p_i) >= R_i          (hard; soft: >= R - s_k, one slack s_k >= 0 a stage)
 
 the tangent of ``|p - p_i| >= R_i`` at ``pbar_k``. As ``|p - p_i| >= n' (p - p_i)`` for every
-unit ``n``, the halfspace lies outside the disc: a plan that keeps its linearized rows keeps
-the distance at its predicted positions, however far ``pbar`` is from the plan (an inner
-approximation), and where the plan is its own linearization trajectory (converged
-successive linearization) the rows are the constraint itself. The soft slack is in metres of
+unit ``n``, the halfspace lies outside the disc: a QP plan that keeps its linearized rows
+keeps the distance at its predicted positions, however far ``pbar`` is from the plan (an
+inner approximation), and where the plan is its own linearization trajectory (converged
+successive linearization, whose plan is the rollout of the QP's inputs, judged by the true
+distance to 1e-5 m) the rows are the constraint itself. The soft slack is in metres of
 distance given up (CasADi's, ``g``, is that to first order at the boundary). ``cbf`` has no
 such form: the barrier's decay side ``-(1 - gamma) h(x_k)`` is concave, its tangent is no
 inner approximation, so ``cbf`` is CasADi's only (:meth:`ObstacleDistance.accepted_by`).
