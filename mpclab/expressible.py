@@ -2,8 +2,9 @@
 
 A family (terms, constraints) names, per backend, the method that expresses one of its
 members for that backend (:attr:`Expressible.backend_methods`); a member can be expressed
-by the backends whose method its class overrides. A backend asks :meth:`Expressible.require`,
-which refuses with a message naming the member and the backends that accept it. Every
+by the backends whose method its class overrides, less those an option of the member rules out
+(:meth:`Expressible.accepted_by`). A backend asks :meth:`Expressible.require`, which refuses
+with a message naming the member and the backends that accept it. Every
 subclass is registered (:func:`mpclab.registry.register_target`): a config may name it.
 """
 
@@ -37,11 +38,22 @@ class Expressible:
         return [b for b, m in cls.backend_methods.items()
                 if getattr(cls, m) is not getattr(family, m)]
 
+    def accepted_by(self) -> list[str]:
+        """Backends that can express this member as configured: its class's
+        (:meth:`backends`), unless one of its options rules a backend out."""
+        return self.backends()
+
+    def variant(self) -> str:
+        """The options that decide :meth:`accepted_by`, as messages name them ("" if none)."""
+        return ""
+
     def require(self, backend: str) -> None:
         """Raise :class:`ConfigError` unless this can be expressed for ``backend``."""
-        if backend not in self.backends():
+        accepted = self.accepted_by()
+        if backend not in accepted:
+            what = ", ".join(filter(None, (type(self).__name__, self.variant())))
             raise ConfigError(
-                f"{self.kind} {self.name!r} ({type(self).__name__}) cannot be expressed "
+                f"{self.kind} {self.name!r} ({what}) cannot be expressed "
                 f"by the {backend} backend; backends that accept it: "
-                f"{', '.join(self.backends()) or '(none)'}"
+                f"{', '.join(accepted) or '(none)'}"
             )

@@ -3,8 +3,9 @@
 Hydra's own help lists every config group, the internal ``schema/*`` entries among them, and
 prints the bare defaults (Study A's car without its terminal constraint). This lists what a
 user picks from: the experiments (mpclab's and those in folders added with ``-cd``) with the
-first line of their description, the choices of each group, the objective term types (by the
-``_target_`` an objective YAML names them with, and the backends that can express each), the
+first line of their description, the choices of each group, the objective term and
+constraint types (by the ``_target_`` an objective YAML names them with, and the backends
+that can express each), the
 chosen controller's options with their one-line meaning (from its constructor's docstring),
 then the config the rest of the command line composes (the README's default experiment when
 it names none). Hydra's flags stay: ``--hydra-help``, ``--cfg job``, ``--info``.
@@ -19,7 +20,9 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from mpclab.constraints.base import Constraint
 from mpclab.experiment import CONF_DIR, compose
+from mpclab.expressible import Expressible
 from mpclab.objectives.base import Term
 from mpclab.registry import TARGETS, register_all
 
@@ -37,11 +40,12 @@ def first_line(path: Path) -> str:
     return ""
 
 
-def term_types() -> list[tuple[str, list[str]]]:
-    """``(_target_, backends)`` of every objective term class."""
+def expressible_types(family: type[Expressible] = Term) -> list[tuple[str, list[str]]]:
+    """``(_target_, backends)`` of every class of ``family`` (objective terms, or
+    constraints)."""
     register_all()
     found: dict[str, list[str]] = {}
-    todo = list(Term.__subclasses__())
+    todo = list(family.__subclasses__())
     while todo:
         cls = todo.pop()
         todo += cls.__subclasses__()
@@ -105,7 +109,11 @@ def text(args: Sequence[str] = ()) -> str:
         names = sorted({p.stem for conf in confs for p in (conf / group).glob("*.yaml")})
         out.append(f"  {group:11s} {', '.join(names)}")
     out += ["", "Objective term types (an objective's terms: {NAME: {_target_: TYPE, ...}}):"]
-    for target, backends in term_types():
+    for target, backends in expressible_types():
+        out.append(f"  {target}  [{', '.join(backends)}]")
+    out += ["", "Constraint types (an objective's constraints: {NAME: {_target_: TYPE, ...}};",
+            "an option may rule a backend out, which the run then names):"]
+    for target, backends in expressible_types(Constraint):
         out.append(f"  {target}  [{', '.join(backends)}]")
     title = "The config of: {}"
     if not any(o.lstrip("+").startswith("experiment=") for o in overrides):

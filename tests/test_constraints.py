@@ -1,4 +1,5 @@
-"""Constraints as objects: the obstacle distance in its three modes, on every CasADi solver."""
+"""Constraints as objects: the obstacle distance in its three modes, on every CasADi solver
+(the CVXPY backend's linearized form: tests/test_cvxpy_obstacles.py)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from mpclab.constraints.base import Constraint
 from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
+from mpclab.controllers.scheduled import _weights
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
@@ -110,13 +112,18 @@ def test_codegen_solves_the_soft_constraint_as_fatrop_does() -> None:
 
 
 def test_a_backend_that_cannot_express_it_refuses_naming_it() -> None:
-    con = _con("hard")
+    con = _con("cbf")
     con.name = "obstacles"
-    with pytest.raises(ConfigError, match="'obstacles'.*casadi"):
+    with pytest.raises(ConfigError, match="'obstacles' .*mode cbf.*cvxpy.*accept it: casadi$"):
         con.require("cvxpy")
     with pytest.raises(ConfigError, match="not a constraint"):
         Objective({"J1": GoalAttraction()}, {"o": GoalAttraction()})
-    assert Constraint.backends() == [] and ObstacleDistance.backends() == ["casadi"]
+    assert Constraint.backends() == []
+    assert ObstacleDistance.backends() == SensedRegion.backends() == ["casadi", "cvxpy"]
+    # the scheduled backend's QP has no rows for constraints: it refuses them, not drops them
+    track = QuadraticTracking(state_weights={"x": 1.0}, input_weights={"u1": 1.0, "u2": 1.0})
+    with pytest.raises(ConfigError, match="'o' .*scheduled backend.*accept it: casadi, cvxpy"):
+        _weights(Objective({"t": track}, {"o": _con("soft")}), Zumo())
 
 
 def test_bad_options_name_the_key_and_choices() -> None:

@@ -1,7 +1,8 @@
 """Constraints as backend-independent objects, like objective terms.
 
 A constraint is data (distances, a mode) plus a way to express itself for each backend that
-can take it: ``casadi_rows`` writes its rows ``g <= 0`` at one stage of a CasADi NLP. A
+can take it: ``casadi_rows`` writes its rows ``g <= 0`` at one stage of a CasADi NLP,
+``cvxpy_rows`` its convex (linearized) form over the horizon of the CVXPY backend's QP. A
 backend asks :meth:`Constraint.require`; one that a constraint does not support refuses at
 construction, naming the constraint and the backends that accept it.
 
@@ -13,6 +14,14 @@ variable ``>= 0`` of its stage when :attr:`Constraint.soft`, else None) and the 
 quantities (:class:`~mpclab.objectives.base.TermContext`, plus the constraint's own
 parameters, declared by :meth:`Constraint.declare` and filled each step by
 :meth:`Constraint.values`). A soft constraint adds ``penalty * slack_k`` to the cost.
+
+The CVXPY backend calls ``cvxpy_rows`` once, on the whole predicted horizon, with the
+slacks ``(T,)`` of a soft constraint; a constraint that is not convex writes its
+linearization about a trajectory, as CVXPY parameters (:meth:`Constraint.cvxpy_declare`)
+that the backend fills wherever it linearizes (:meth:`Constraint.cvxpy_values`), so that the
+problem is compiled once. :meth:`Constraint.violation` judges a plan in numbers, the same
+for every backend: a warm start that breaks a constraint is cut there, and successive
+linearization weighs a rollout by it.
 """
 
 from __future__ import annotations
@@ -20,10 +29,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from mpclab.expressible import Expressible
 
 #: backend name -> the Constraint method that expresses a constraint for it
-BACKEND_METHODS = {"casadi": "casadi_rows"}
+BACKEND_METHODS = {"casadi": "casadi_rows", "cvxpy": "cvxpy_rows"}
+#: a predicted state closer than this to breaking a constraint still keeps it [m]
+KEPT = 1e-9
 
 
 class Constraint(Expressible):
@@ -56,10 +69,34 @@ class Constraint(Expressible):
         """Rows ``g <= 0`` (a CasADi column) at one stage; ``first``: stage 0."""
         raise NotImplementedError
 
+    def cvxpy_declare(self, params: Any, n_points: int, horizon: int) -> dict[str, Any]:
+        """Declare the CVXPY parameters of :meth:`cvxpy_rows` on ``params`` (``add(name, rows,
+        cols)``, as :meth:`declare`'s); return ``{name: parameter}``."""
+        return {}
+
+    def cvxpy_values(self, x0: Any, X: Any, detections: Any, mask: Any) -> dict[str, Any]:
+        """The values of the parameters :meth:`cvxpy_declare` named, linearized about the
+        trajectory ``X (T+1, nx)`` (numbers), at the measured state ``x0`` and the padded
+        detections ``(2, M)`` with their mask ``(M,)``."""
+        return {}
+
+    def cvxpy_rows(self, X: Any, slack: Any, ctx: Any, par: Mapping[str, Any]) -> list[Any]:
+        """CVXPY constraints (DPP) on the predicted states ``X[:, 1:]`` of ``X (nx, T+1)``;
+        ``slack``: the stages' slacks ``(T,)`` (a variable ``>= 0``) when soft, else None."""
+        raise NotImplementedError
+
+    def violation(self, x0: Any, X: Any, detections: Any, mask: Any) -> np.ndarray | None:
+        """How far each predicted state ``x_k`` (``k = 1..T``) of the plan ``X (T+1, nx)``
+        (numbers) breaks this constraint at the current detections, ``(T,)``, 0 where it
+        holds; None (the default): never judged."""
+        return None
+
     def first_violation(self, x0: Any, X: Any, detections: Any, mask: Any) -> int | None:
         """The first step ``k >= 1`` at which the plan ``X (T+1, nx)`` (numbers) breaks this
-        constraint at the current detections, or None (the default: never judged)."""
-        return None
+        constraint at the current detections, or None (also when never judged)."""
+        v = self.violation(x0, X, detections, mask)
+        bad = np.flatnonzero(v > KEPT) if v is not None else np.zeros(0)
+        return int(bad[0]) + 1 if bad.size else None
 
     def info(self) -> dict[str, Any]:
         """What the run record shows of this constraint."""

@@ -20,6 +20,24 @@ Modes (:class:`ObstacleMode`):
 
 Padding points (mask 0) give rows that always hold. :class:`SensedRegion` bounds the plan to
 the sensor's disc around the measured position, ``|p_{k+1} - p_0| <= range``.
+
+On CVXPY (``cvxpy_rows``), where a constraint must be convex, the distance is linearized
+about the trajectory the successive linearization linearizes the dynamics about: with
+``pbar_k`` its position at step ``k`` and ``n_{k,i}`` the unit vector from ``p_i`` to
+``pbar_k``, ::
+
+    n_{k,i}' (p_k - p_i) >= R_i          (hard; soft: >= R - s_k, one slack s_k >= 0 a stage)
+
+the tangent of ``|p - p_i| >= R_i`` at ``pbar_k``. As ``|p - p_i| >= n' (p - p_i)`` for every
+unit ``n``, the halfspace lies outside the disc: a QP plan that keeps its linearized rows
+keeps the distance at its predicted positions, however far ``pbar`` is from the plan (an
+inner approximation), and where the plan is its own linearization trajectory (converged
+successive linearization, whose plan is the rollout of the QP's inputs, judged by the true
+distance to 1e-5 m) the rows are the constraint itself. The soft slack is in metres of
+distance given up (CasADi's, ``g``, is that to first order at the boundary). ``cbf`` has no
+such form: the barrier's decay side ``-(1 - gamma) h(x_k)`` is concave, its tangent is no
+inner approximation, so ``cbf`` is CasADi's only (:meth:`ObstacleDistance.accepted_by`).
+:class:`SensedRegion` is convex and written as it is (one second-order cone a stage).
 """
 
 from __future__ import annotations
@@ -32,6 +50,9 @@ import numpy as np
 
 from mpclab.constraints.base import Constraint
 from mpclab.errors import ConfigError, number, parse_choice
+from mpclab.lazy import lazy_import
+
+cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 
 
 class ObstacleMode(StrEnum):
@@ -47,6 +68,11 @@ class _Positions(Constraint):
     def _d2(self, x: Any, pts: Any) -> Any:
         """Squared distances ``(M,)`` from the position of state ``x`` to ``pts (2, M)``."""
         return (x[self._ix] - pts[0, :].T) ** 2 + (x[self._iy] - pts[1, :].T) ** 2
+
+    def _plan_positions(self, X: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The predicted positions ``x (T,), y (T,)`` of a plan ``X (T+1, nx)`` (numbers)."""
+        X = np.asarray(X, dtype=float)
+        return X[1:, self._ix], X[1:, self._iy]
 
 
 class ObstacleDistance(_Positions):
@@ -104,12 +130,57 @@ class ObstacleDistance(_Positions):
     def values(self, x0: Any, detections: Any, mask: Any) -> dict[str, Any]:
         return {f"{self.name}_radius": self.radius(x0, detections, mask)}
 
-    def first_violation(self, x0: Any, X: Any, detections: Any, mask: Any) -> int | None:
+    def accepted_by(self) -> list[str]:
+        """Every backend of the class, less CVXPY in mode ``cbf`` (module docstring)."""
+        return [b for b in self.backends()
+                if not (b == "cvxpy" and self.mode is ObstacleMode.cbf)]
+
+    def variant(self) -> str:
+        return f"mode {self.mode.value}"
+
+    def violation(self, x0: Any, X: Any, detections: Any, mask: Any) -> np.ndarray:
+        """``max_i (R_i - |p_k - p_i|)`` over the detected points, 0 where all are kept."""
         R = self.radius(x0, detections, mask)
-        d = np.hypot(X[1:, self._ix, None] - detections[0][None],
-                     X[1:, self._iy, None] - detections[1][None])       # (T, M)
-        bad = np.flatnonzero(np.any((d < R[None] - 1e-9) & (mask[None] > 0), axis=1))
-        return int(bad[0]) + 1 if bad.size else None
+        px, py = self._plan_positions(X)
+        d = np.hypot(px[:, None] - detections[0][None], py[:, None] - detections[1][None])
+        short = np.where(np.asarray(mask)[None] > 0, R[None] - d, 0.0)    # (T, M)
+        return np.maximum(short.max(axis=1, initial=0.0), 0.0)
+
+    def cvxpy_declare(self, params: Any, n_points: int, horizon: int) -> dict[str, Any]:
+        return {k: params.add(f"{self.name}_{k}", n_points, horizon)
+                for k in ("normal_x", "normal_y", "offset")}
+
+    def cvxpy_values(self, x0: Any, X: Any, detections: Any, mask: Any) -> dict[str, Any]:
+        """``n_{k,i}`` ``(M, T)`` by components and ``offset = n_{k,i}' p_i + R_i``, 0 for
+        padding; a linearization point on a detected point takes the direction from it to
+        the measured position (or +x)."""
+        m = np.asarray(mask, dtype=float)[:, None]
+        px, py = self._plan_positions(X)
+        ox, oy = (np.asarray(detections[j], dtype=float)[:, None] for j in (0, 1))
+        dx, dy = px[None] - ox, py[None] - oy                               # (M, T)
+        d = np.hypot(dx, dy)
+        near = d < 1e-9
+        if near.any():
+            fx, fy = x0[self._ix] - ox, x0[self._iy] - oy
+            fd = np.hypot(fx, fy)
+            far = fd >= 1e-9
+            fx, fy, fd = np.where(far, fx, 1.0), np.where(far, fy, 0.0), np.where(far, fd, 1.0)
+            dx, dy = np.where(near, fx, dx), np.where(near, fy, dy)
+            d = np.where(near, fd, d)
+        nx, ny = dx / d * m, dy / d * m
+        R = self.radius(x0, detections, mask)[:, None]
+        return {f"{self.name}_normal_x": nx, f"{self.name}_normal_y": ny,
+                f"{self.name}_offset": (nx * ox + ny * oy + R) * m}
+
+    def cvxpy_rows(self, X: Any, slack: Any, ctx: Any, par: Any) -> list[Any]:
+        M, T = par["offset"].shape
+        ones = np.ones((M, 1))
+        px = ones @ cp.reshape(X[self._ix, 1:], (1, T), order="F")          # (M, T)
+        py = ones @ cp.reshape(X[self._iy, 1:], (1, T), order="F")
+        lhs = cp.multiply(par["normal_x"], px) + cp.multiply(par["normal_y"], py)
+        if slack is None:
+            return [lhs >= par["offset"]]
+        return [lhs >= par["offset"] - ones @ cp.reshape(slack, (1, T), order="F")]
 
     def g(self, x: Any, ctx: Any, radius: Any) -> Any:
         """``g_i`` ``(M,)`` at state ``x`` (<= 0 where ``x`` keeps its distance)."""
@@ -151,6 +222,15 @@ class SensedRegion(_Positions):
         p0 = ca.vertcat(ctx.x0[self._ix], ctx.x0[self._iy])
         d2 = self._d2(x_next, p0)
         return (d2 - self.max_range**2) / (2 * self.max_range)
+
+    def cvxpy_rows(self, X: Any, slack: Any, ctx: Any, par: Any) -> list[Any]:
+        rel = cp.vstack([X[self._ix, 1:] - ctx.x0[self._ix], X[self._iy, 1:] - ctx.x0[self._iy]])
+        return [cp.norm(rel, 2, axis=0) <= self.max_range]
+
+    def violation(self, x0: Any, X: Any, detections: Any, mask: Any) -> np.ndarray:
+        """How far beyond ``max_range`` from the measured position each predicted one is."""
+        px, py = self._plan_positions(X)
+        return np.maximum(np.hypot(px - x0[self._ix], py - x0[self._iy]) - self.max_range, 0.0)
 
     def info(self) -> dict[str, Any]:
         return {"type": type(self).__name__, "max_range_m": self.max_range}

@@ -61,6 +61,7 @@ from mpclab.controllers.casadi_solvers import (
     nlpsol_options,
     read_status,
 )
+from mpclab.controllers.constrained import SlackLog, pad_detections
 from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -206,7 +207,7 @@ class CasadiMPC(Controller):
         objective.bind(plant, "casadi")
         self.constraints = list(objective.constraints.values())
         self._follows = any(t.uses_follow for t in objective.terms.values())
-        self._slack_max: list[float] = []
+        self._slacks = SlackLog()
         self._names = list(objective.terms)
         self._M = max(self.max_detections, 1)
         terminal = terminal_rows(plant, dict(terminal_constraint or {}))
@@ -262,7 +263,7 @@ class CasadiMPC(Controller):
     def reset(self, x0: Any) -> None:
         super().reset(x0)
         self._lam_x = self._lam_g = None
-        self._slack_max = []
+        self._slacks.reset()
 
     def _params(self, x: FloatArray, ctx: StepContext, nlp: _NLP | None = None) -> FloatArray:
         nlp = nlp or self._full
@@ -292,22 +293,7 @@ class CasadiMPC(Controller):
         self, x: FloatArray, det: FloatArray, follow: Any = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Detections ``(2, M)``, their mask and the followed points' mask ``(M,)``."""
-        M = self._M
-        ix, iy = (self.plant.state_index(s) for s in self.plant.position)
-        pos = np.array([x[ix], x[iy]])
-        det = det.reshape(-1, 2)
-        fol = np.zeros(len(det)) if follow is None else np.asarray(follow, dtype=float)
-        if fol.shape != (len(det),):
-            raise ValueError(f"follow mask of shape {fol.shape} for {len(det)} detections")
-        if len(det) > self.max_detections:  # keep the nearest
-            order = np.argsort(np.linalg.norm(det - pos, axis=1))[: self.max_detections]
-            det, fol = det[order], fol[order]
-        out = np.tile(pos + 1e3, (M, 1))  # padding far away, masked out anyway
-        out[: len(det)] = det
-        mask, fmask = np.zeros(M), np.zeros(M)
-        mask[: len(det)] = 1.0
-        fmask[: len(det)] = fol
-        return out.T, mask, fmask
+        return pad_detections(self.plant, x, det, self.max_detections, follow)
 
     def _initial_guess(self, x: FloatArray, ctx: StepContext | None = None,
                        ) -> tuple[FloatArray, bool]:
@@ -388,7 +374,7 @@ class CasadiMPC(Controller):
         ocp = self.ocp
         self._w_prev = w
         if ocp.slack_idx is not None:
-            self._slack_max.append(float(w[ocp.slack_idx].max()))
+            self._slacks.add(w[ocp.slack_idx].max())
         self._lam_x = self._shift_lam_x(io["lam_x"])
         self._lam_g = io["lam_g"].copy()
         U = self.blocking.expand(w[ocp.u_idx])
@@ -421,14 +407,9 @@ class CasadiMPC(Controller):
 
     def metrics(self, steps: Any) -> dict[str, Any]:
         out = {"solver": self.solver.value, "jit": self.compiled, "codegen": self.codegen,
-               "nlps": 1 + len(self._by_set),
-               "constraints": {c.name: c.info() for c in self.constraints}}
+               "nlps": 1 + len(self._by_set), **self._slacks.metrics(self.constraints)}
         if self.codegen:  # where its C is (printed at the end of the run)
             out["generated_c"] = [str(p) for n in (self._full, *self._by_set.values())
                                   for p in (n.generated.generated if n.generated else [])]
-        if self._slack_max:  # soft constraints: how often and how far they gave way
-            sl = np.array(self._slack_max)
-            out["slack_steps"] = int(np.sum(sl > 1e-6))
-            out["slack_max_m"] = float(sl.max())
         return out
 

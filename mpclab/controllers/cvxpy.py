@@ -10,6 +10,15 @@ default goes straight from the compiled parameter-to-data map to a persistent Cl
 (:mod:`mpclab.controllers.cvxpy_sl`); the trust region and the input bounds are one pair of
 parameters, so the QP does not grow. ``sl: one_pass`` is the study's scheme, one QP per step
 about the previous plan shifted, always ``truncated``.
+
+The objective's constraints (``objective.constraints``, :mod:`mpclab.constraints`) enter the
+QP by :mod:`mpclab.controllers.cvxpy_constraints`, linearized about the same trajectory as
+the dynamics (each iterate's rollout; in ``one_pass`` the previous plan shifted or its
+rollout), their per-step data as parameters: still compiled once. A warm start that breaks
+one is not cut there as the CasADi backend cuts it (the iteration weighs a rollout by its
+violation; the cut stalled runs past a wall that arrive without it). A soft one's slacks
+are reported in the summary (``slack_steps``, ``slack_max_m``: the largest distance a plan
+gave up, measured on the plan).
 """
 
 from __future__ import annotations
@@ -33,8 +42,9 @@ from mpclab.controllers.base import (
     terminal_rows,
 )
 from mpclab.controllers.blocking import Blocking, ControlHorizon
+from mpclab.controllers.cvxpy_constraints import QPConstraints, assign
 from mpclab.controllers.cvxpy_direct import CompiledQP, DirectClarabel, QPSolution, SolveVia
-from mpclab.controllers.cvxpy_sl import MAX_RADIUS, Hessian, Point, TrustRegionSL
+from mpclab.controllers.cvxpy_sl import MAX_RADIUS, Hessian, Point, TrustRegionSL, model_through
 from mpclab.errors import ConfigError, parse_choice
 from mpclab.lazy import lazy_import
 from mpclab.objectives.base import Objective, TermContext
@@ -76,7 +86,8 @@ class CvxpyMPC(Controller):
     ----------
     plant, objective
         Injected; every objective term must support CVXPY (and CasADi, for ``converge``:
-        the true cost of a rollout is evaluated with the terms' CasADi form).
+        the true cost of a rollout is evaluated with the terms' CasADi form), and so must
+        every constraint (the obstacle distance in modes ``hard`` and ``soft``, linearized).
     horizon, dt
         Prediction steps and sample time [s].
     control_horizon
@@ -118,6 +129,8 @@ class CvxpyMPC(Controller):
     delay_compensation
         Solve from the state predicted over the loop's expected latency with the input in
         effect, the reference shifted by the same time (``Controller.step``).
+    max_detections
+        Detected points the QP has room for (with constraints); more are cut to the nearest.
     """
 
     def __init__(
@@ -140,6 +153,7 @@ class CvxpyMPC(Controller):
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
         delay_compensation: bool = False,
+        max_detections: int = 20,
     ) -> None:
         super().__init__(plant, horizon, dt, delay_compensation)
         self.blocking = Blocking.of(control_horizon, self.horizon)
@@ -169,6 +183,10 @@ class CvxpyMPC(Controller):
         if self.sl is SlMode.converge:
             for term in objective:
                 term.require("casadi")
+        if int(max_detections) < 0:
+            raise ConfigError(f"controller.max_detections must be >= 0, got {max_detections}")
+        self.limits = QPConstraints(plant, objective.constraints.values(), self.horizon,
+                                    int(max_detections))
         self._terminal = terminal_rows(plant, terminal_constraint)
         if not self._terms_qp:
             self._check_compile_size()
@@ -178,6 +196,7 @@ class CvxpyMPC(Controller):
         self.iteration = None if self.sl is SlMode.one_pass else TrustRegionSL(
             plant, objective, self.blocking, self.dt, self._terminal, self.hessian, self.tol,
             self.max_iterations, self.trust_radius, self._u_lo, self._u_hi,
+            self.limits.judge if self.limits else None,
         )
 
     def _check_compile_size(self) -> None:
@@ -233,8 +252,10 @@ class CvxpyMPC(Controller):
         cons += _box(X[:, 1:], self.plant.x_lb, self.plant.x_ub)
         cons += [X[i, T] == value for i, value in self._terminal]
         self.p_u_prev = cp.Parameter(nu, name="u_prev")
+        ctx = TermContext(x0=self.p_x0, target=self.p_target, u_prev=self.p_u_prev)
+        rows, penalty = self.limits.rows(X, ctx)
+        cons += rows
         if self._terms_qp:
-            ctx = TermContext(x0=self.p_x0, target=self.p_target, u_prev=self.p_u_prev)
             cost = sum(term.cvxpy_cost(X, U, ctx) for term in self.objective)
         else:  # g'v + |L v - L vbar|^2 / 2: the model up to a constant (L'L: clipped Hessian)
             n = nu * M
@@ -243,11 +264,11 @@ class CvxpyMPC(Controller):
             self.p_Lu = cp.Parameter(n, name="L_ubar")
             u = cp.vec(V, order="F")
             cost = self.p_grad @ u + 0.5 * cp.sum_squares(self.p_L @ u - self.p_Lu)
-        self.problem = cp.Problem(cp.Minimize(cost), cons)
+        self.problem = cp.Problem(cp.Minimize(cost + penalty), cons)
         if not self.problem.is_dpp():
             raise ConfigError(
                 "the CVXPY problem is not DPP-compliant, so it would be recompiled every step; "
-                "check that every objective term is affine in its parameters"
+                "check that every objective term and constraint is affine in its parameters"
             )
         # compile now (canonicalization, the parameter-to-data map), not in the first step
         for param in self.problem.parameters():
@@ -264,6 +285,7 @@ class CvxpyMPC(Controller):
         warm start, the persistent Clarabel solver), so a reused controller repeats a run."""
         super().reset(x0)
         self.qp.reset()
+        self.limits.log.reset()
 
     def _guess(self) -> FloatArray:
         """The first linearization moves ``(M, nu)``: the previous plan shifted and
@@ -275,35 +297,40 @@ class CvxpyMPC(Controller):
 
     def _set_model(self, A: FloatArray, B: FloatArray, c: FloatArray) -> None:
         nx = self.plant.nx
-        _assign(self.p_model, np.concatenate(
+        assign(self.p_model, np.concatenate(
             [A.transpose(1, 0, 2).reshape(nx, -1), B.transpose(1, 0, 2).reshape(nx, -1), c.T],
             axis=1,
         ))
 
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:
-        _assign(self.p_x0, x)
-        _assign(self.p_target, ctx.target.T)
-        _assign(self.p_u_prev, self.previous_input)
-        if self.sl is SlMode.one_pass:
-            return self._one_pass(x)
-        return self._converge(x, ctx)
+        assign(self.p_x0, x)
+        assign(self.p_target, ctx.target.T)
+        assign(self.p_u_prev, self.previous_input)
+        if self.limits:
+            self.limits.at_step(x, ctx.detections)
+        step = self._one_pass(x) if self.sl is SlMode.one_pass else self._converge(x, ctx)
+        if self.limits and step.ok:
+            self.limits.record(step.x_pred)
+        return step
 
     # ------------------------------------------------------------------ one pass
     def _linearization_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``one_pass``: the states and inputs ``(T, nx)``, ``(T, nu)`` linearized about."""
+        """``one_pass``: the states and inputs ``(T+1, nx)``, ``(T, nu)`` linearized about."""
         Ubar = self.blocking.expand(self._guess())
         if self.previous_plan is None or self.linearize_about is Linearization.rollout:
-            return self.plant.rollout(x, Ubar, self.dt)[:-1], Ubar
-        Xbar = shift(self.previous_plan.x_pred)[:-1].copy()
+            return self.plant.rollout(x, Ubar, self.dt), Ubar
+        Xbar = shift(self.previous_plan.x_pred).copy()
         Xbar[0] = x
         return Xbar, Ubar
 
     def _one_pass(self, x: FloatArray) -> ControlStep:
         Xbar, Ubar = self._linearization_points(x)
-        self._set_model(*self.plant.linearize_trajectory(Xbar, Ubar, self.dt))
+        self._set_model(*self.plant.linearize_trajectory(Xbar[:-1], Ubar, self.dt))
+        if self.limits:
+            self.limits.linearize(Xbar)
         M = self.blocking.n_moves
-        _assign(self.p_u_lo, np.tile(self._u_lo[:, None], (1, M)))
-        _assign(self.p_u_hi, np.tile(self._u_hi[:, None], (1, M)))
+        assign(self.p_u_lo, np.tile(self._u_lo[:, None], (1, M)))
+        assign(self.p_u_hi, np.tile(self._u_hi[:, None], (1, M)))
         sol = self.qp.solve()
         if sol.values is None:
             return self._failed(sol.status, x, sol.raw, sol.message, sol.iterations)
@@ -326,7 +353,7 @@ class CvxpyMPC(Controller):
         U = self.blocking.expand(pt.U)
         return ControlStep(
             u=U[0].copy(), x_pred=pt.X, u_pred=U, status=out.status,
-            cost=pt.cost, solver_status=out.raw, iterations=out.iterations,
+            cost=pt.cost + pt.penalty, solver_status=out.raw, iterations=out.iterations,
             info={"qp_iterations": out.qp_iterations, "trust_radius": out.radius},
         )
 
@@ -338,19 +365,25 @@ class CvxpyMPC(Controller):
         return Problem.nonlinear if self.sl is SlMode.converge else Problem.linearized
 
     def metrics(self, steps: Any) -> dict[str, Any]:
-        """The linearization scheme."""
-        return {"sl": self.sl.value}
+        """The linearization scheme; with constraints, theirs and their slacks."""
+        return {"sl": self.sl.value, **(self.limits.metrics() if self.limits else {})}
 
-    def _trust_region_qp(self, bar: Point, r: float) -> QPSolution:
-        """The QP linearized about ``bar`` with ``|V - bar.U| <= r`` (in half input ranges)."""
-        _assign(self.p_model, bar.model)
+    def _trust_region_qp(self, bar: Point, r: float, through: Point | None = None,
+                         ) -> QPSolution:
+        """The QP linearized about ``bar`` with ``|V - bar.U| <= r`` (in half input ranges);
+        ``through``: its dynamics model moved through that rollout, the constraints
+        linearized about it (a second-order correction, :mod:`~mpclab.controllers.cvxpy_sl`)."""
+        assign(self.p_model, bar.model if through is None else
+               model_through(bar.model, through.X, self.blocking.expand(through.U)))
+        if self.limits:
+            self.limits.linearize((through or bar).X)
         if bar.grad is not None:
-            _assign(self.p_grad, bar.grad)
-            _assign(self.p_L, bar.L)
-            _assign(self.p_Lu, bar.L @ bar.U.ravel())
+            assign(self.p_grad, bar.grad)
+            assign(self.p_L, bar.L)
+            assign(self.p_Lu, bar.L @ bar.U.ravel())
         scale = self.iteration.scale
-        _assign(self.p_u_lo, np.maximum(self._u_lo, bar.U - r * scale).T)
-        _assign(self.p_u_hi, np.minimum(self._u_hi, bar.U + r * scale).T)
+        assign(self.p_u_lo, np.maximum(self._u_lo, bar.U - r * scale).T)
+        assign(self.p_u_hi, np.minimum(self._u_hi, bar.U + r * scale).T)
         return self.qp.solve()
 
 
@@ -364,14 +397,3 @@ def _box(V: cp.Expression, lb: FloatArray, ub: FloatArray) -> list[cp.Constraint
     if hi:
         cons.append(V[hi, :] <= ub[hi][:, None])
     return cons
-
-
-def _assign(param: cp.Parameter, value: Any) -> None:
-    """Set a parameter's value without CVXPY's per-assignment validation (it projects the
-    value onto the parameter's attributes, of which ours have none: about 0.1 ms each, a
-    dozen times a step); the shape and finiteness are checked here."""
-    value = np.array(value, dtype=float)
-    if value.shape != param.shape or not np.all(np.isfinite(value)):
-        raise ValueError(f"parameter {param.name()}: bad value of shape {value.shape}")
-    param.save_value(value)
-

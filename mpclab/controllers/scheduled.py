@@ -416,6 +416,8 @@ class _OpModel:
 def _weights(objective: Objective, plant: Plant) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Diagonal state, terminal and input weights summed over the objective's terms."""
     q, qT, r = np.zeros(plant.nx), np.zeros(plant.nx), np.zeros(plant.nu)
+    for con in objective.constraints.values():  # its QP has no rows for them
+        con.require("scheduled")
     for term in objective:
         if not isinstance(term, QuadraticTracking):
             raise ConfigError(

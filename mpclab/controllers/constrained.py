@@ -1,0 +1,68 @@
+"""What every backend that takes the objective's constraints does with them, in one place.
+
+The detected points are padded to the room the problem has for them (the nearest kept), and
+the soft constraints' slacks are summed up for the run record. CasADi
+(:mod:`mpclab.controllers.casadi`) and CVXPY (:mod:`mpclab.controllers.cvxpy`) both call
+these.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from mpclab.constraints.base import Constraint
+from mpclab.controllers.base import FloatArray
+from mpclab.plants.base import Plant
+
+#: a slack above this [m] counts as a step on which a soft constraint gave way
+GAVE_WAY = 1e-6
+
+
+def pad_detections(
+    plant: Plant, x: FloatArray, det: Any, max_detections: int, follow: Any = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Detections ``(2, M)`` (``M = max(max_detections, 1)``), their mask and the followed
+    points' mask ``(M,)``: more than ``max_detections`` points are cut to the nearest, the
+    rest is padding far away (mask 0)."""
+    M = max(max_detections, 1)
+    ix, iy = (plant.state_index(s) for s in plant.position)
+    pos = np.array([x[ix], x[iy]])
+    det = np.asarray(det, dtype=float).reshape(-1, 2)
+    fol = np.zeros(len(det)) if follow is None else np.asarray(follow, dtype=float)
+    if fol.shape != (len(det),):
+        raise ValueError(f"follow mask of shape {fol.shape} for {len(det)} detections")
+    if len(det) > max_detections:  # keep the nearest
+        order = np.argsort(np.linalg.norm(det - pos, axis=1))[:max_detections]
+        det, fol = det[order], fol[order]
+    out = np.tile(pos + 1e3, (M, 1))  # padding far away, masked out anyway
+    out[: len(det)] = det
+    mask, fmask = np.zeros(M), np.zeros(M)
+    mask[: len(det)] = 1.0
+    fmask[: len(det)] = fol
+    return out.T, mask, fmask
+
+
+class SlackLog:
+    """The largest slack of the soft constraints at each step, for the run record."""
+
+    def __init__(self) -> None:
+        self.steps: list[float] = []
+
+    def reset(self) -> None:
+        self.steps = []
+
+    def add(self, largest: float) -> None:
+        self.steps.append(float(largest))
+
+    def metrics(self, constraints: Sequence[Constraint]) -> dict[str, Any]:
+        """The constraints' :meth:`~mpclab.constraints.base.Constraint.info` and, with soft
+        ones, on how many steps and how far [m] they gave way."""
+        out: dict[str, Any] = {"constraints": {c.name: c.info() for c in constraints}}
+        if self.steps:
+            sl = np.array(self.steps)
+            out["slack_steps"] = int(np.sum(sl > GAVE_WAY))
+            out["slack_max_m"] = float(sl.max())
+        return out
