@@ -54,7 +54,7 @@ class DistanceGrid:
     ys: FloatArray
     #: ``(len(ys), len(xs))``, capped at ``cap``
     dist: FloatArray
-    points: FloatArray
+    cell: float
 
     @classmethod
     def around(cls, points: FloatArray, centre: FloatArray, radius: float, cell: float,
@@ -64,15 +64,25 @@ class DistanceGrid:
         xs = np.arange(centre[0] - radius, centre[0] + radius + cell, cell)
         ys = np.arange(centre[1] - radius, centre[1] + radius + cell, cell)
         dist = np.full((len(ys), len(xs)), float(cap))
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
         reach = int(np.ceil(cap / cell))
-        for px, py in points:
-            i, j = int(round((px - xs[0]) / cell)), int(round((py - ys[0]) / cell))
-            i0, i1 = max(i - reach, 0), min(i + reach + 1, len(xs))
-            j0, j1 = max(j - reach, 0), min(j + reach + 1, len(ys))
-            if i0 < i1 and j0 < j1:
-                near = np.hypot(xs[None, i0:i1] - px, ys[j0:j1, None] - py)
-                np.minimum(dist[j0:j1, i0:i1], near, out=dist[j0:j1, i0:i1])
-        return cls(xs, ys, np.minimum(dist, cap), np.asarray(points, dtype=float))
+        ci = np.rint((pts[:, 0] - xs[0]) / cell).astype(int)
+        cj = np.rint((pts[:, 1] - ys[0]) / cell).astype(int)
+        i0, i1 = np.maximum(ci - reach, 0), np.minimum(ci + reach + 1, len(xs))
+        j0, j1 = np.maximum(cj - reach, 0), np.minimum(cj + reach + 1, len(ys))
+        for n in np.flatnonzero((i0 < i1) & (j0 < j1)):
+            window = dist[j0[n]:j1[n], i0[n]:i1[n]]
+            near = np.hypot(xs[None, i0[n]:i1[n]] - pts[n, 0], ys[j0[n]:j1[n], None] - pts[n, 1])
+            np.minimum(window, near, out=window)
+        return cls(xs, ys, dist, cell)
+
+    def gradient(self, at: FloatArray) -> FloatArray:
+        """``(k, 2)``: the distance's gradient at the grid nodes nearest ``at`` ``(k, 2)``
+        (central differences)."""
+        gy, gx = np.gradient(self.dist, self.cell)
+        i = np.clip(np.rint((at[:, 0] - self.xs[0]) / self.cell).astype(int), 0, len(self.xs) - 1)
+        j = np.clip(np.rint((at[:, 1] - self.ys[0]) / self.cell).astype(int), 0, len(self.ys) - 1)
+        return np.c_[gx[j, i], gy[j, i]]
 
     def level_lines(self, level: float, side: Side) -> list[FloatArray]:
         """The level lines ``d = level`` (< the cap), each ``(k, 2)`` without repeated
@@ -87,9 +97,7 @@ class DistanceGrid:
             # orient: the points on the followed side of most steps
             step = np.diff(line, axis=0)
             mid = 0.5 * (line[1:] + line[:-1])
-            nearest = np.argmin(
-                np.linalg.norm(mid[:, None, :] - self.points[None], axis=2), axis=1)
-            away = mid - self.points[nearest]                 # the way d grows
+            away = self.gradient(mid)                         # the way d grows
             left = step[:, 0] * away[:, 1] - step[:, 1] * away[:, 0]
             on_right = float(np.sum(left > 0)) >= 0.5 * len(left)
             lines.append(line if on_right == (side is Side.right) else line[::-1])
@@ -167,7 +175,7 @@ def offset_path(
     u = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
     floor = clearance if least is None else min(least, clearance)
     radius = n * spacing + 2 * clearance + 3 * cell
-    grid = DistanceGrid.around(pts, q, radius, cell, cap=2 * clearance)
+    grid = DistanceGrid.around(pts, q, radius, cell, cap=clearance + 2 * cell)
     level, path = clearance, None
     while path is None:
         # a pocket the robot is not in is not a way on: it is walled off at this level
