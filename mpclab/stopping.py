@@ -33,6 +33,26 @@ def received() -> Terminated | None:
     return Terminated(_RECEIVED[-1]) if _RECEIVED else None
 
 
+def interrupted(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt behind ``exc``, if it is one that native code handed back as another
+    error (it must stop the run, not count as a failed solve); None otherwise. CasADi's
+    solvers check for SIGINT between iterations and raise ``RuntimeError('KeyboardInterrupt')``
+    (their ``KeyboardInterruptException``); a SIGINT inside a generated function comes back
+    as ``SystemError: ... returned a result with an exception set``, raised from the
+    ``KeyboardInterrupt``; a SIGTERM or SIGHUP received meanwhile (:func:`received`) makes
+    any error an interrupt."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return cause
+        if isinstance(cause, RuntimeError) and str(cause).strip().endswith("KeyboardInterrupt"):
+            return received() or KeyboardInterrupt()
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return received()
+
+
 def _stop(signum: int, frame: FrameType | None) -> None:
     default_stop_signals()  # a second signal: the system's handling, the process ends
     _RECEIVED.append(signal.Signals(signum).name)
