@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -29,3 +31,12 @@ def run_cfg(tmp_path: Path) -> Callable[..., tuple[object, Path]]:
         return run_experiment(cfg, out), out
 
     return _run
+
+
+def wait_for(check: Callable[[], bool], proc: subprocess.Popen, limit_s: float = 240.0) -> None:
+    """Wait until ``check()`` holds, while ``proc`` (a command to be stopped) still runs."""
+    t0 = time.time()
+    while not check():
+        assert proc.poll() is None, "ended before it could be stopped"
+        assert time.time() - t0 < limit_s, "never got under way"
+        time.sleep(0.2)

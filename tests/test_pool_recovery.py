@@ -15,7 +15,7 @@ import pytest
 from hydra_plugins.mpclab_launcher import pool_launcher, recovery
 from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher, StartMethod
 from mpclab.errors import ConfigError
-from mpclab.stopping import worker_signals
+from mpclab.stopping import SAME_STOP_S, call_first_on_stop, worker_signals
 
 CTX = multiprocessing.get_context("fork")
 
@@ -30,6 +30,12 @@ def _job(idx: int, overrides: list[str], slot: int) -> tuple[int, str]:
     if "die" in overrides:
         os.kill(os.getpid(), signal.SIGKILL)
     return idx, os.getpid()
+
+
+def _wait_started(board: recovery.JobBoard, slot: int) -> None:
+    deadline = time.time() + 60
+    while not board.started(slot) and time.time() < deadline:
+        time.sleep(0.01)
 
 
 def test_each_alone_returns_results_and_says_how_a_job_was_lost() -> None:
@@ -58,9 +64,7 @@ def test_the_watchdog_stops_only_the_overdue_job() -> None:
         for p in procs:
             p.start()
         procs[1].join()
-        deadline = time.time() + 60
-        while not board.started(2) and time.time() < deadline:  # its own start comes first
-            time.sleep(0.01)
+        _wait_started(board, 2)  # its own start comes first
         board.end(2)  # slot 2 counts as ended: its process is not this watchdog's to stop
         procs[0].join(timeout=60)
     assert procs[0].exitcode == -signal.SIGKILL and procs[1].exitcode == 0
@@ -92,17 +96,66 @@ def test_a_stopped_sweep_interrupts_the_running_job_and_starts_no_other() -> Non
 
     proc = CTX.Process(target=worker)
     proc.start()
-    deadline = time.time() + 60
-    while not board.started(0) and time.time() < deadline:
-        time.sleep(0.01)
-    board.stop()
+    _wait_started(board, 0)
+    board.stop(signal.SIGTERM)  # the launcher's own stop, passed on as SIGINT
     board.interrupt_running()
     assert receive.poll(60)
     assert [receive.recv(), receive.recv()] == [
-        (0, "interrupted"), (1, "interrupted the sweep stopped before this job started")]
+        (0, "interrupted SIGTERM"), (1, "interrupted the sweep stopped before this job started")]
     proc.join(timeout=60)
-    assert proc.exitcode == 0 and board.stopped()
+    assert proc.exitcode == 0 and board.stopped()  # stopped by the launcher: it goes on
     assert not board.overdue(0.0)  # no job is left running
+
+
+def test_a_worker_given_sigterm_in_a_job_records_it_then_ends() -> None:
+    """SIGTERM sent to the worker itself (to the sweep's process group, or by the pool): the
+    job is interrupted once, also when the launcher's SIGINT follows, and its end (the
+    record) comes before the worker ends, killed by SIGTERM."""
+    board = recovery.JobBoard.new(CTX, 1)
+    receive, send = CTX.Pipe(duplex=False)
+
+    def job() -> None:
+        worker_signals()
+        with board.running(0):
+            try:
+                while True:  # at work
+                    time.sleep(0.01)
+            except KeyboardInterrupt as exc:  # writing its record, the launcher's SIGINT
+                os.kill(os.getpid(), signal.SIGINT)  # comes: noted, not raised
+                time.sleep(0.1)
+                send.send(repr(exc))
+        send.send("not reached")
+
+    proc = CTX.Process(target=job)
+    proc.start()
+    _wait_started(board, 0)
+    os.kill(proc.pid, signal.SIGTERM)
+    proc.join(timeout=60)
+    assert proc.exitcode == -signal.SIGTERM
+    assert receive.recv() == "Terminated('SIGTERM')"
+    assert not receive.poll(0)
+
+
+def test_a_second_signal_calls_first_then_does_what_it_did() -> None:
+    """The stop sent again at once (``timeout`` sends it to its command and to the command's
+    process group) is not a second one."""
+    receive, send = CTX.Pipe(duplex=False)
+
+    def launcher() -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        with call_first_on_stop(lambda: send.send("first")):
+            os.kill(os.getpid(), signal.SIGTERM)
+            send.send("again")
+            time.sleep(SAME_STOP_S)
+            os.kill(os.getpid(), signal.SIGTERM)
+            send.send("not reached")
+
+    proc = CTX.Process(target=launcher)
+    proc.start()
+    proc.join(timeout=60)
+    assert proc.exitcode == -signal.SIGTERM
+    assert [receive.recv(), receive.recv()] == ["again", "first"]
+    assert not receive.poll(0)
 
 
 def test_a_bad_time_limit_is_one_message_naming_it() -> None:

@@ -6,17 +6,18 @@ SIGTERM (what ``timeout``, SLURM, a container stop send) and reads what it left.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, wait_for
 
 pytestmark = pytest.mark.slow
 LONG_RUN = ["+experiment=zumo_right_hand", "scenario=zumo_dead_end", "recorder=none",
@@ -28,17 +29,9 @@ LONG_RUN = ["+experiment=zumo_right_hand", "scenario=zumo_dead_end", "recorder=n
 AS_BACKGROUND_JOB = ["sh", "-c", 'trap "" INT; exec "$@"', "sh"]
 
 
-def _start(args: list[str], out: Path, prefix: list[str] | None = None) -> subprocess.Popen:
-    return subprocess.Popen([*(prefix or []), sys.executable, "-m", "mpclab", *args], cwd=ROOT,
-                            text=True, stdout=out.open("w"), stderr=subprocess.STDOUT)
-
-
-def _wait_for(check, proc: subprocess.Popen, limit_s: float = 240.0) -> None:
-    t0 = time.time()
-    while not check():
-        assert proc.poll() is None, "ended before it could be stopped"
-        assert time.time() - t0 < limit_s, "never got under way"
-        time.sleep(0.2)
+def _start(args: list[str], out: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "mpclab", *args], cwd=ROOT, text=True,
+                            stdout=out.open("w"), stderr=subprocess.STDOUT)
 
 
 def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
@@ -47,7 +40,7 @@ def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
                    f"hydra.run.dir={run_dir}"], tmp_path / "console.txt")
     log = run_dir / "__main__.log"
     # said once the loop has run 2 s and its estimate is above a minute: the loop is going
-    _wait_for(lambda: log.exists() and "a long run" in log.read_text(), proc)
+    wait_for(lambda: log.exists() and "a long run" in log.read_text(), proc)
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=60) == 130, (tmp_path / "console.txt").read_text()[-3000:]
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -58,28 +51,77 @@ def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
     assert "interrupted by SIGTERM" in (tmp_path / "console.txt").read_text()
 
 
-def test_sigterm_ends_a_sweep_that_resumes(tmp_path: Path) -> None:
-    """The launcher passes the stop on to its workers as SIGINT; started as a background job
-    of a script (SIGINT ignored, and inherited so by the workers), each worker still takes it
-    as an interrupt of its job."""
+#: a recorder (a plugin, as a user's own would be) by which job 6 of a sweep sends SIGTERM at
+#: its fifth step, once (not again when the sweep resumes): the stop lands while that job is
+#: in its loop, the other worker's job wherever it is
+STOPPER = """
+import os
+import signal
+from pathlib import Path
+
+from mpclab.recording.base import Recorder
+from mpclab.registry import register_target
+
+
+@register_target
+class Stopper(Recorder):
+    def __init__(self, out_dir):
+        self.mark = Path(out_dir).parent / "stopped"
+        self.here = Path(out_dir).name == "6" and not self.mark.exists()
+
+    def log_step(self, k, t, x, step, ctx):
+        if self.here and k == 5:
+            self.mark.touch()
+            {send}
+"""
+SENDS = {"to_the_launcher": "os.kill(os.getppid(), signal.SIGTERM)",
+         "to_its_group": "os.killpg(os.getpgrp(), signal.SIGTERM)"}
+
+
+@pytest.mark.parametrize("to", list(SENDS))
+def test_sigterm_ends_a_sweep_that_resumes(tmp_path: Path, to: str) -> None:
+    """Sent to the launcher alone, the stop is passed on to its workers as SIGINT; started as
+    a background job of a script (SIGINT ignored, and inherited so by the workers), each
+    worker still takes it as an interrupt of its job. Sent to the process group (SLURM's time
+    limit, ``timeout``, a container stop), each worker gets it too and takes it the same way:
+    its job ends ``interrupted`` with its record, then the worker ends."""
+    (tmp_path / "stopper.py").write_text(STOPPER.format(send=SENDS[to]))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
     sweep_dir = tmp_path / "sweep"
-    args = ["-m", *LONG_RUN, "scenario.t_max=40", "seed=range(0,24)",
-            "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={sweep_dir}"]
-    proc = _start(args, tmp_path / "console.txt", prefix=AS_BACKGROUND_JOB)
-    progress = sweep_dir / ".mpclab" / "progress.jsonl"
-    _wait_for(lambda: progress.exists() and len(progress.read_text().splitlines()) >= 6, proc)
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=120) == 130
-    rows = pd.read_parquet(sweep_dir / "summary.parquet")
+    args = ["-m", *LONG_RUN, "scenario.t_max=40", "seed=range(0,12)", "plugins=[stopper]",
+            "recorder._target_=stopper.Stopper", "hydra.launcher.n_jobs=2",
+            f"hydra.sweep.dir={sweep_dir}"]
+    console = tmp_path / "console.txt"
+    # in a process group of its own, with its workers, as a batch system starts a command
+    proc = subprocess.Popen([*AS_BACKGROUND_JOB, sys.executable, "-m", "mpclab", *args],
+                            cwd=ROOT, env=env, stdout=console.open("w"),
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        assert proc.wait(timeout=300) == 130, console.read_text()[-3000:]
+        with pytest.raises(ProcessLookupError):  # no worker outlives the launcher
+            os.killpg(proc.pid, 0)
+    finally:  # whatever failed, nothing of it is left running
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    rows = pd.read_parquet(sweep_dir / "summary.parquet").set_index("job")
     finished = rows[~rows["status"].isin(["interrupted", "incomplete"])]
-    assert len(finished) >= 6 and len(finished) < 24
-    assert (rows["status"] == "interrupted").any()  # the jobs running then, each recorded
-    console = (tmp_path / "console.txt").read_text()
-    assert "interrupted by SIGTERM" in console and "resumes it" in console
+    assert len(finished) >= 5 and len(finished) < 12  # job 6 started once 5 had ended
+    progress = (sweep_dir / ".mpclab" / "progress.jsonl").read_text().splitlines()
+    assert {str(json.loads(line)["job"]) for line in progress} <= set(finished.index)
+    # the jobs running then, each recorded, saying what stopped it; job 6 in its loop, with
+    # its steps so far
+    stopped = rows[rows["status"] == "interrupted"]
+    assert stopped["error"].str.contains("SIGTERM").all(), stopped["error"]
+    assert rows.loc["6", "status"] == "interrupted" and rows.loc["6", "n_steps"] >= 5
+    summary = json.loads((sweep_dir / "6" / "summary.json").read_text())
+    assert summary["error"] == "KeyboardInterrupt (SIGTERM)"
+    assert len(pd.read_parquet(sweep_dir / "6" / "steps.parquet")) >= summary["n_steps"]
+    out = console.read_text()
+    assert "interrupted by SIGTERM" in out and "resumes it" in out
     # the same command goes on: the finished jobs are skipped, the others run
-    again = subprocess.run([sys.executable, "-m", "mpclab", *args], cwd=ROOT, text=True,
-                           capture_output=True, timeout=600)
+    again = subprocess.run([sys.executable, "-m", "mpclab", *args], cwd=ROOT, env=env,
+                           text=True, capture_output=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
     rows = pd.read_parquet(sweep_dir / "summary.parquet")
-    assert len(rows) == 24 and not rows["status"].isin(["interrupted", "error"]).any()
+    assert len(rows) == 12 and not rows["status"].isin(["interrupted", "error"]).any()
     assert f"{len(finished)} resumed" in again.stdout + again.stderr

@@ -6,10 +6,13 @@ workers), shortened by ``+ci=smoke``. ``test_sweep_jobs.py`` checks resume rules
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pandas as pd
@@ -17,8 +20,9 @@ import pytest
 import yaml
 from hydra.errors import HydraException
 
-from conftest import ROOT, compose_cfg
+from conftest import ROOT, compose_cfg, wait_for
 from mpclab.figure_file import read_figure
+from mpclab.stopping import SAME_STOP_S
 
 pytestmark = pytest.mark.slow
 
@@ -119,23 +123,27 @@ def test_started_workers_run_the_sweep(tmp_path: Path) -> None:
     assert "2/2 jobs done, 0 failed" in out and "(spawn)" in out
 
 
-FAULTY = '''"""A scenario that, in the job with seed=1, kills its own process (a stand-in for a
-crash in native code, or the kernel's OOM killer) or hangs."""
+FAULTY = '''"""A scenario whose building does a fault in some jobs: kills its own process (a
+stand-in for a crash in native code, or the kernel's OOM killer), hangs, or waits for another
+job (files in MARKS tell where the jobs are)."""
 import inspect
 import os
 import pydoc
 import signal
 import time
+from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
 
 from mpclab.registry import register_target
 
+MARKS = Path({marks!r})
+
 
 @register_target  # a config may build it (the config lists this module under plugins)
 def scenario(plant, rng, **options):
-    if "seed=1" in HydraConfig.get().overrides.task:
-        {fault}
+    task = HydraConfig.get().overrides.task
+{fault}
     real = pydoc.locate({real!r})
     deps = {{"plant": plant, "rng": rng}}
     takes = inspect.signature(real).parameters
@@ -143,27 +151,36 @@ def scenario(plant, rng, **options):
 '''
 
 
-def faulty_sweep(tmp_path: Path, fault: str, *overrides: str) -> tuple[pd.DataFrame, str]:
-    """A 4-job car sweep on the pool whose job with seed=1 does ``fault``; its table (by
-    seed) and console output."""
+def faulty_command(tmp_path: Path, fault: str, *overrides: str) -> tuple[list[str], dict]:
+    """The command and environment of a 4-job car sweep on the pool whose scenario runs
+    ``fault`` (code that reads ``task``, the job's overrides) as it is built."""
     base = ["+experiment=car_cvxpy", "+ci=smoke"]
     real = compose_cfg(base).scenario._target_
-    (tmp_path / "faulty.py").write_text(FAULTY.format(real=real, fault=fault))
-    out_dir = tmp_path / "sweep"
+    (tmp_path / "faulty.py").write_text(FAULTY.format(
+        real=real, marks=str(tmp_path), fault=textwrap.indent(textwrap.dedent(fault), "    ")))
     cmd = [sys.executable, "-m", "mpclab", "-m", *base, "scenario._target_=faulty.scenario",
-           "plugins=[faulty]", "seed=0,1,2,3", *overrides, f"hydra.sweep.dir={out_dir}"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "PYTHONPATH": str(tmp_path)})
+           "plugins=[faulty]", "seed=0,1,2,3", *overrides,
+           f"hydra.sweep.dir={tmp_path / 'sweep'}"]
+    return cmd, {**os.environ, "PYTHONPATH": str(tmp_path)}
+
+
+def faulty_sweep(tmp_path: Path, fault: str, *overrides: str) -> tuple[pd.DataFrame, str]:
+    """The sweep of :func:`faulty_command`, run to its end; its table (by seed) and console
+    output."""
+    cmd, env = faulty_command(tmp_path, fault, *overrides)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-4000:]
-    df = pd.read_parquet(out_dir / "summary.parquet").set_index("seed")
+    df = pd.read_parquet(tmp_path / "sweep" / "summary.parquet").set_index("seed")
     assert len(df) == 4 and "4/4 jobs done, 1 failed" in out, out[-4000:]
     return df, out
 
 
 def test_a_worker_that_dies_costs_only_its_own_job(tmp_path: Path) -> None:
-    df, out = faulty_sweep(tmp_path, "os.kill(os.getpid(), signal.SIGKILL)",
-                           "hydra.launcher.n_jobs=2")
+    df, out = faulty_sweep(tmp_path, """
+        if "seed=1" in task:
+            os.kill(os.getpid(), signal.SIGKILL)
+        """, "hydra.launcher.n_jobs=2")
     # the job that killed its worker (twice: once among the others, once alone) is a row
     assert df.loc[1, "status"] == "error"
     assert "worker process" in df.loc[1, "error"] and "SIGKILL" in df.loc[1, "error"]
@@ -173,11 +190,79 @@ def test_a_worker_that_dies_costs_only_its_own_job(tmp_path: Path) -> None:
     assert "Traceback" not in out
 
 
+def test_a_worker_stopped_by_the_pool_records_its_job_and_ends(tmp_path: Path) -> None:
+    """When a worker dies, the pool stops the others with SIGTERM and waits for them: one
+    running a job takes it as a stop (its job records what it has), then ends, and the sweep
+    goes on (no worker left waiting for a job that never comes)."""
+    df, out = faulty_sweep(tmp_path, """
+        if "seed=0" in task and not (MARKS / "started").exists():  # beside seed 1, not again
+            try:
+                (MARKS / "started").touch()  # now seed 1's worker dies
+                while True:  # at work: a signal that another thread took is seen here too
+                    time.sleep(0.05)
+            except KeyboardInterrupt as stop:
+                (MARKS / "stopped").write_text(repr(stop))
+                raise
+        if "seed=1" in task:
+            while not (MARKS / "started").exists():
+                time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGKILL)
+        """, "hydra.launcher.n_jobs=2")
+    assert (tmp_path / "stopped").read_text() == "Terminated('SIGTERM')"
+    assert "the 2 job(s) running then run again" in out
+    assert df.loc[1, "status"] == "error" and "SIGKILL" in df.loc[1, "error"]
+    assert (df.drop(index=1)["status"] != "error").all(), df["error"]
+    assert not (df["status"] == "interrupted").any()  # seed 0 ran again, to its end
+
+
+@pytest.mark.parametrize("to_group", [False, True], ids=["to_the_launcher", "to_its_group"])
+def test_a_second_sigterm_ends_the_sweep_with_its_workers(tmp_path: Path, to_group: bool) -> None:
+    """Jobs that run on past a stop (here each ignores its interrupt): a second SIGTERM ends
+    the launcher at once, and its workers with it (none is left running on its own)."""
+    cmd, env = faulty_command(tmp_path, """
+        (MARKS / f"worker-{os.getpid()}").touch()
+        while True:  # at work (not one long sleep): it sees a signal another thread took
+            try:
+                time.sleep(0.05)
+            except KeyboardInterrupt:
+                (MARKS / f"stopped-{os.getpid()}").touch()
+        """, "hydra.launcher.n_jobs=2")
+    with (tmp_path / "console.txt").open("w") as console:
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=console,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+
+    def stop() -> None:
+        if to_group:
+            os.killpg(proc.pid, signal.SIGTERM)
+        else:
+            proc.send_signal(signal.SIGTERM)
+
+    try:
+        wait_for(lambda: len(list(tmp_path.glob("worker-*"))) == 2, proc)
+        workers = [int(p.name.split("-")[1]) for p in tmp_path.glob("worker-*")]
+        stop()
+        wait_for(lambda: len(list(tmp_path.glob("stopped-*"))) == 2, proc)  # each goes on
+        for _ in range(60):  # within SAME_STOP_S of the first, a signal is that one again
+            stop()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=SAME_STOP_S)
+                break
+        assert proc.wait(timeout=0) == -signal.SIGTERM
+        for pid in workers:
+            with pytest.raises(ProcessLookupError):
+                os.kill(pid, 0)
+    finally:  # whatever failed, nothing of it is left running
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_job_that_hangs_is_stopped_at_its_time_limit(tmp_path: Path, workers: int) -> None:
     # the limit leaves the other jobs 5 times what a worker's first car job takes here (2 s)
-    df, out = faulty_sweep(tmp_path, "time.sleep(600)", "hydra.launcher.job_timeout_s=10",
-                           f"hydra.launcher.n_jobs={workers}")
+    df, out = faulty_sweep(tmp_path, """
+        if "seed=1" in task:
+            time.sleep(600)
+        """, "hydra.launcher.job_timeout_s=10", f"hydra.launcher.n_jobs={workers}")
     assert df.loc[1, "status"] == "error"
     assert "did not end within hydra.launcher.job_timeout_s=10 s" in df.loc[1, "error"]
     assert (df.drop(index=1)["status"] != "error").all(), df["error"]

@@ -72,7 +72,7 @@ from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchd
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
-from mpclab.stopping import Terminated, worker_signals
+from mpclab.stopping import Terminated, call_first_on_stop, signal_of, worker_signals
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
@@ -125,8 +125,8 @@ def _init_worker(
 def _init_forked(*args: Any) -> None:
     """:func:`_init_worker` for a worker process forked from the launching one, with a
     worker's signal handling (:func:`~mpclab.stopping.worker_signals`), not the launching
-    process's: SIGTERM and SIGHUP end it (the pool stops a worker with SIGTERM), SIGINT
-    interrupts its job (the launching process passes a stop on to its workers as SIGINT)."""
+    process's: SIGTERM and SIGHUP end it (the pool stops a worker with SIGTERM), after the
+    job it runs, if any, recorded what it had; SIGINT interrupts its job only."""
     worker_signals()
     _init_worker(*args)
 
@@ -338,6 +338,7 @@ class PoolLauncher(Launcher):
         """Run the jobs at ``todo`` (places in ``jobs``) on a new pool of ``n`` workers into
         ``results``; return the places of those lost because a worker died, and of those
         whose worker was stopped for running out of time."""
+        children = set(multiprocessing.active_children())  # before this round's workers
         pool = ProcessPoolExecutor(max_workers=min(n, len(todo)), mp_context=ctx,
                                    initializer=initializer, initargs=initargs)
         lost: list[int] = []
@@ -362,10 +363,12 @@ class PoolLauncher(Launcher):
                         log.error("job %d: its worker could not return it: %r", idx, exc)
                         results[idx] = self._error_row(idx, overrides, exc, {"job": idx})
         except BaseException as exc:
-            board.stop()  # the jobs queued for the workers do not start
-            if isinstance(exc, Terminated):  # Ctrl-C reaches the workers too; a signal
-                board.interrupt_running()    # sent to this process alone is passed on
-            pool.shutdown(wait=True, cancel_futures=True)
+            # the workers record their stopped jobs; a second signal ends them, and this process
+            with call_first_on_stop(lambda: recovery.kill_started_since(children)):
+                board.stop(signal_of(exc))  # the jobs queued for the workers do not start
+                if isinstance(exc, Terminated):  # Ctrl-C reaches the workers too; a signal
+                    board.interrupt_running()    # sent to this process alone is passed on
+                pool.shutdown(wait=True, cancel_futures=True)
             raise
         finally:
             gc.unfreeze()

@@ -6,14 +6,16 @@ worker dies, the pool is broken and every job not yet done is lost with it; the 
 the jobs that were running (to run again, each in a process of its own: :func:`each_alone`)
 from those never started (to run on a new pool). :class:`Watchdog` stops the worker of a job
 that runs longer than ``hydra.launcher.job_timeout_s``. When the sweep is stopped (Ctrl-C,
-SIGTERM), the board says so: the jobs already queued for the workers do not start, and the
-running ones are interrupted (:meth:`JobBoard.running`, :meth:`JobBoard.interrupt_running`).
+SIGTERM), the board says so and by which signal: the jobs already queued for the workers do
+not start, and the running ones are interrupted (:meth:`JobBoard.running`,
+:meth:`JobBoard.interrupt_running`), their records naming the signal.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import multiprocessing
 import os
 import signal
 import threading
@@ -23,7 +25,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
-from mpclab.stopping import interruptible
+from mpclab.stopping import stoppable_job
 
 log = logging.getLogger(__name__)
 
@@ -51,11 +53,11 @@ class Lost:
 
 class JobBoard:
     """Per job (its slot): the pid of the worker running it, negative once it ended, 0
-    before it started; and when it started (``time.time()``); last, whether the sweep
-    stopped (:meth:`stop`); in the shared array :attr:`cells`. A worker gets the array when
-    it starts (a forked one inherits it) and wraps it again: the board itself is not
-    pickled, since Hydra's plugin scan runs this module again and a pickled instance of the
-    first run's class would not be found."""
+    before it started; and when it started (``time.time()``); last, the signal that stopped
+    the sweep (:meth:`stop`; 0 while it runs); in the shared array :attr:`cells`. A worker
+    gets the array when it starts (a forked one inherits it) and wraps it again: the board
+    itself is not pickled, since Hydra's plugin scan runs this module again and a pickled
+    instance of the first run's class would not be found."""
 
     def __init__(self, cells: Any) -> None:
         self.cells = cells
@@ -68,26 +70,35 @@ class JobBoard:
 
     @contextlib.contextmanager
     def running(self, slot: int) -> Iterator[None]:
-        """Job ``slot`` runs in this worker within this block: noted on the board, and
-        SIGINT interrupts it (:func:`~mpclab.stopping.interruptible`; between jobs a worker
-        ignores SIGINT). A job that would start once the sweep has stopped does not: it
-        raises ``KeyboardInterrupt`` at once (no row; the same command runs it)."""
-        try:
-            with interruptible():
+        """Job ``slot`` runs in this worker within this block: noted on the board, and a
+        stop signal interrupts it (:func:`~mpclab.stopping.stoppable_job`: SIGINT, naming
+        the signal the launcher passes on, SIGTERM and SIGHUP; a worker stopped by one of the
+        last two ends after the block). A job that would start once the sweep has stopped
+        does not: it raises ``KeyboardInterrupt`` at once (no row; the same command runs
+        it)."""
+        with stoppable_job(self.passed_on):
+            try:
                 self.start(slot)
                 if self.stopped():  # after start: a stop is seen here or finds the job running
                     raise KeyboardInterrupt("the sweep stopped before this job started")
                 yield
-        finally:  # SIGINT ignored again: the job is over, an interrupt would hit the worker
-            self.end(slot)
+            finally:  # before the worker might end
+                self.end(slot)
 
-    def stop(self) -> None:
-        """The sweep stops: its workers start no job after this."""
-        self.cells[2 * self.n_jobs] = 1
+    def stop(self, by: signal.Signals = signal.SIGINT) -> None:
+        """The sweep stops, by signal ``by``: its workers start no job after this."""
+        self.cells[2 * self.n_jobs] = int(by)
 
     def stopped(self) -> bool:
         """Whether the sweep stopped (:meth:`stop`)."""
         return self.cells[2 * self.n_jobs] != 0
+
+    def passed_on(self) -> str | None:
+        """The name of the signal that stopped the sweep, where the launcher passes it on to
+        its workers as SIGINT (:meth:`interrupt_running`); None for Ctrl-C (SIGINT itself)
+        or while the sweep runs."""
+        by = int(self.cells[2 * self.n_jobs])
+        return None if by in (0, signal.SIGINT) else signal.Signals(by).name
 
     def start(self, slot: int) -> None:
         self.cells[2 * slot + 1] = time.time()
@@ -101,7 +112,8 @@ class JobBoard:
 
     def interrupt_running(self) -> None:
         """Send SIGINT to the worker of every running job (it ends ``interrupted``, its
-        steps so far recorded, as on Ctrl-C); call :meth:`stop` first."""
+        steps so far recorded, naming the signal given to :meth:`stop`); call :meth:`stop`
+        first."""
         for pid in {int(self.cells[2 * slot]) for slot in range(self.n_jobs)}:
             if pid > 0:
                 with contextlib.suppress(ProcessLookupError):
@@ -145,6 +157,16 @@ class Watchdog:
                     os.kill(pid, signal.SIGKILL)
                 except ProcessLookupError:  # it ended meanwhile
                     pass
+
+
+def kill_started_since(before: set[Any]) -> None:
+    """Kill the child processes of this process started since ``before`` (what
+    :func:`multiprocessing.active_children` was then), and wait for each to end."""
+    procs = [p for p in multiprocessing.active_children() if p not in before]
+    for proc in procs:
+        proc.kill()
+    for proc in procs:
+        proc.join()
 
 
 def death(exitcode: int) -> str:

@@ -23,7 +23,7 @@ from mpclab.controllers.blocking import Blocking
 from mpclab.errors import ConfigError, number
 from mpclab.plants.base import Plant
 from mpclab.status import USABLE, Problem, SolveStatus
-from mpclab.stopping import received
+from mpclab.stopping import interrupted
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -104,26 +104,6 @@ class ControlStep:
         # controller that steps in microseconds
         return (all(map(math.isfinite, self.u.tolist())) and math.isfinite(self.u_pred.sum())
                 and math.isfinite(self.x_pred.sum()))
-
-
-def interrupted(exc: BaseException) -> KeyboardInterrupt | None:
-    """The interrupt behind ``exc``, if it is one that native code handed back as another
-    error (it must stop the run, not count as a failed solve); None otherwise. CasADi's
-    solvers check for SIGINT between iterations and raise ``RuntimeError('KeyboardInterrupt')``
-    (their ``KeyboardInterruptException``); a SIGINT inside a generated function comes back
-    as ``SystemError: ... returned a result with an exception set``, raised from the
-    ``KeyboardInterrupt``; a SIGTERM or SIGHUP received meanwhile (:mod:`mpclab.stopping`)
-    makes any error an interrupt."""
-    seen: set[int] = set()
-    cause: BaseException | None = exc
-    while cause is not None and id(cause) not in seen:
-        if isinstance(cause, KeyboardInterrupt):
-            return cause
-        if isinstance(cause, RuntimeError) and str(cause).strip().endswith("KeyboardInterrupt"):
-            return received() or KeyboardInterrupt()
-        seen.add(id(cause))
-        cause = cause.__cause__ or cause.__context__
-    return received()
 
 
 class Controller(ABC):

@@ -23,6 +23,7 @@ from mpclab import record
 from mpclab.errors import bad_input_message
 from mpclab.origin import RunOrigin
 from mpclab.registry import TARGETS
+from mpclab.stopping import interrupted, stopped_by
 from mpclab.tables import override_key
 from mpclab.warm import WORKER_CACHE
 
@@ -170,11 +171,13 @@ def run_job(
     except RunInterrupted:
         raise  # stopped in its loop: its partial record is written
     except KeyboardInterrupt as exc:  # stopped while building: the row says so, resume reruns it
-        summary = {**error_summary(exc, overrides, cfg, choices), "status": "interrupted"}
-        Path(out_dir).mkdir(parents=True, exist_ok=True)
-        record.write_summary(out_dir, summary)
+        _write_interrupted(exc, out_dir, overrides, cfg, choices)
         raise
     except Exception as exc:  # the sweep goes on; the row says what happened
+        stop = interrupted(exc)  # a stop that the code it hit turned into another error
+        if stop is not None:
+            _write_interrupted(stop, out_dir, overrides, cfg, choices)
+            raise stop from exc
         log.error("job failed: %s\n%s", exc, traceback.format_exc())
         summary = error_summary(exc, overrides, cfg, choices)
         Path(out_dir).mkdir(parents=True, exist_ok=True)
@@ -185,3 +188,15 @@ def run_job(
     summary = {**summary, "load": load, "overrides": overrides}
     record.write_summary(out_dir, summary)  # again, now naming its overrides (for resume)
     return summary
+
+
+def _write_interrupted(
+    stop: KeyboardInterrupt, out_dir: Path, overrides: Sequence[str], cfg: DictConfig,
+    choices: dict[str, Any],
+) -> None:
+    """The row of a job stopped before its loop (the same command runs it again), naming
+    what stopped it as a run's record does."""
+    summary = {**error_summary(stop, overrides, cfg, choices), "status": "interrupted",
+               "error": f"KeyboardInterrupt ({stopped_by(stop)})"}
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    record.write_summary(out_dir, summary)
