@@ -6,7 +6,7 @@ plan scored by ONE cost function against a tight-tolerance IPOPT reference.
     uv run python experiments/agreement/agreement.py --case bicycle --dt 0.05
     uv run python experiments/agreement/agreement.py --warm           # in each own closed loop
     uv run python experiments/agreement/agreement.py --case bicycle --control-horizon 3
-    uv run python experiments/agreement/agreement.py --case car --override cvxpy:controller.sl=one_pass
+    uv run python experiments/agreement/agreement.py --override cvxpy:controller.sl=one_pass
 
 The Zumo NMPC (its NLP with detections, per BUG2 mode) has its own script, ``zumo_nlp.py``.
 
