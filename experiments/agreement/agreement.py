@@ -398,7 +398,7 @@ def main() -> None:
         cols = [c for c in ("scenario", "t", "backend", "status", "true_cost", "gap",
                             "gap_held", "du0", "viol", "pred_err") if c in df]
         print(df[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        summaries.append(f"### {title}: summary\n\n"
+        summaries.append(f"**{name}**, dt = {args.dt or CASES[name].dt} s, {mode}:\n\n"
                          + summarize(df).to_markdown(floatfmt=".3g"))
     if args.csv:
         pd.concat(frames).to_csv(args.csv, index=False)
