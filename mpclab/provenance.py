@@ -82,10 +82,12 @@ def stamped(text: str, argv: Sequence[str] | None = None) -> str:
     return f"{text.rstrip()}\n\n{stamp(argv)}\n"
 
 
-def write_stamped(path: Path | str | None, text: str,
+def write_stamped(path: Path | str | None, text: str | Sequence[str],
                   argv: Sequence[str] | None = None) -> str:
-    """Print ``text`` stamped; also write it to ``path`` (a ``--md`` option) when given."""
-    out = stamped(text, argv)
+    """Print ``text`` stamped (several tables: each under its own stamp); also write it to
+    ``path`` (a ``--md`` option) when given."""
+    parts = [text] if isinstance(text, str) else list(text)
+    out = "\n".join(stamped(part, argv) for part in parts)
     print(out)
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,8 @@ def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> No
     for table in ("training.md", "evaluation.md"):  # stamped: command, commit, CPU, date
         text = (pub / table).read_text()
         assert " · commit " in text and " cores · " in text
+    evaluation = (pub / "evaluation.md").read_text()  # each table under its own stamp
+    assert evaluation.count(" · commit ") == evaluation.count("\n## ") + 1 == 2
     # the evaluation alone re-runs on the published net, with no dataset in its work folder
     (pub / "evaluation.md").unlink()
     main(["--config", str(ROOT / "conf/approx/zumo_nn_smoke.yaml"), "--stages", "eval",

@@ -104,6 +104,10 @@ def test_a_sweep_ends_with_its_front_and_the_tables_tool_writes_it_again(tmp_pat
     again = pd.read_csv(tmp_path / "pareto.csv").set_index("overrides")["arrival_s"]
     pd.testing.assert_series_equal(again, first)  # the sweep's objectives, read back
     assert "## Pareto front" in capsys.readouterr().out
+    assert tables_main(["--pareto", "--points", "--no-figure", str(tmp_path)]) == 0
+    out = capsys.readouterr().out  # every point with its spread, then the stamp
+    assert "## Every point" in out and "arrival_s_min" in out
+    assert "· commit " in out.split("## Every point")[1]
 
 
 def test_tables_tool_refuses_a_bad_objective(tmp_path: Path) -> None:

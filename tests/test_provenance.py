@@ -29,6 +29,10 @@ def test_write_stamped_prints_and_writes_the_table_with_its_stamp(tmp_path, caps
     assert out.startswith(table + "\n\n`uv run python bench.py` · commit ")
     assert out in capsys.readouterr().out
     assert provenance.write_stamped(None, table, ["bench.py"]).startswith(table)
+    two = provenance.write_stamped(None, [table, "| b |\n|---|\n| 2 |"], ["bench.py"])
+    first, second = two.split("| b |")
+    assert first.startswith(table + "\n\n`uv run python bench.py` · commit ")
+    assert second.count("· commit ") == 1  # each table under its own stamp
 
 
 def test_a_file_this_command_rewrote_does_not_make_the_stamp_dirty(tmp_path, monkeypatch) -> None:

@@ -6,6 +6,7 @@ plan scored by ONE cost function against a tight-tolerance IPOPT reference.
     uv run python experiments/agreement/agreement.py --case bicycle --dt 0.05
     uv run python experiments/agreement/agreement.py --warm           # in each own closed loop
     uv run python experiments/agreement/agreement.py --case bicycle --control-horizon 3
+    uv run python experiments/agreement/agreement.py --override cvxpy:controller.sl=one_pass
 
 The Zumo NMPC (its NLP with detections, per BUG2 mode) has its own script, ``zumo_nlp.py``.
 
@@ -50,7 +51,7 @@ from mpclab.experiment import build_run, compose  # noqa: E402
 from mpclab.instantiate import build  # noqa: E402
 from mpclab.objectives.base import Objective, TermContext  # noqa: E402
 from mpclab.plants.base import Plant  # noqa: E402
-from mpclab.provenance import stamp  # noqa: E402
+from mpclab.provenance import write_stamped  # noqa: E402
 from mpclab.sim import simulate  # noqa: E402
 
 #: IPOPT for the reference: tight, never stopping at the "acceptable" level, many iterations
@@ -219,7 +220,8 @@ def sample_states(case: Case, scenario: str, dt: float,
 
 def compare(case: Case, dt: float | None = None, samples: dict[str, list[int]] | None = None,
             backends: list[str] | None = None, warm: bool = False,
-            control_horizon: str | None = None) -> pd.DataFrame:
+            control_horizon: str | None = None,
+            overrides: dict[str, list[str]] | None = None) -> pd.DataFrame:
     """One row per (scenario, state, backend): the measures in the module docstring.
 
     ``samples`` (scenario -> closed-loop steps) and ``backends`` restrict the case. ``warm``:
@@ -227,14 +229,15 @@ def compare(case: Case, dt: float | None = None, samples: dict[str, list[int]] |
     run) and is scored at its own states at those steps; otherwise every backend is reset
     and solves cold at the states of one sampling closed loop. ``control_horizon`` (as on
     the command line: ``3``, ``[1,2,7]``) blocks every backend, and the held-input
-    reference, so.
+    reference, so. ``overrides``: more Hydra overrides for a backend, by its name.
     """
     dt = case.dt if dt is None else dt
     rows: list[dict[str, Any]] = []
     samples = case.samples if samples is None else samples
     blocked = [] if control_horizon is None else [f"controller.control_horizon={control_horizon}"]
+    overrides = overrides or {}
     for scenario in samples:
-        runs = {b: build_run(compose(_fill([*o, *blocked], scenario, dt)))
+        runs = {b: build_run(compose(_fill([*o, *overrides.get(b, []), *blocked], scenario, dt)))
                 for b, o in case.backends.items() if backends is None or b in backends}
         ctrls = {b: r.controller for b, r in runs.items()}
         T = {c.horizon for c in ctrls.values()}
@@ -357,31 +360,50 @@ def main() -> None:
     ap.add_argument("--case", choices=list(CASES), action="append")
     ap.add_argument("--dt", type=float, default=None, help="sample time (default: the case's)")
     ap.add_argument("--csv", type=Path, default=None, help="write the per-state rows here")
+    ap.add_argument("--md", type=Path, default=None,
+                    help="also write the summaries here, each under its stamp")
     ap.add_argument("--warm", action="store_true",
                     help="each backend in its own closed loop, warm-started (default: cold)")
     ap.add_argument("--control-horizon", default=None,
                     help="block every backend so (3, [1,2,7]); the held reference likewise")
+    ap.add_argument("--backend", action="append",
+                    help="only this backend (repeatable; default: every backend of the case)")
+    ap.add_argument("--override", action="append", default=[], metavar="BACKEND:OVERRIDE",
+                    help="one more Hydra override for one backend (repeatable), e.g. "
+                         "cvxpy:controller.sl=one_pass")
     args = ap.parse_args()
-    pd.set_option("display.width", 200)
-    pd.set_option("display.max_columns", 20)
-    frames = []
-    for name in args.case or list(CASES):
-        df = compare(CASES[name], args.dt, warm=args.warm,
-                     control_horizon=args.control_horizon)
+    names = args.case or list(CASES)
+    known = sorted({b for n in names for b in CASES[n].backends})
+    overrides: dict[str, list[str]] = {}
+    for item in args.override:
+        backend, sep, override = item.partition(":")
+        if not sep or not override or backend not in known:
+            ap.error(f"--override {item!r}: expected BACKEND:OVERRIDE with BACKEND one of "
+                     f"{', '.join(known)}")
+        overrides.setdefault(backend, []).append(override)
+    for backend in args.backend or []:
+        if backend not in known:
+            ap.error(f"--backend {backend!r}: expected one of {', '.join(known)}")
+    frames, summaries = [], []
+    for name in names:
+        df = compare(CASES[name], args.dt, backends=args.backend, warm=args.warm,
+                     control_horizon=args.control_horizon, overrides=overrides)
         df.insert(0, "case", name)
         frames.append(df)
         mode = "warm, own closed loop" if args.warm else "cold"
         if args.control_horizon:
             mode += f", control horizon {args.control_horizon}"
-        print(f"\n## {name}  (dt = {args.dt or CASES[name].dt}, {mode})\n")
+        title = f"{name}  (dt = {args.dt or CASES[name].dt}, {mode})"
+        print(f"\n## {title}\n")
         cols = [c for c in ("scenario", "t", "backend", "status", "true_cost", "gap",
                             "gap_held", "du0", "viol", "pred_err") if c in df]
         print(df[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        print(f"\n### {name}: summary\n")
-        print(summarize(df).to_string(float_format=lambda v: f"{v:.3g}"))
+        summaries.append(f"**{name}**, dt = {args.dt or CASES[name].dt} s, {mode}:\n\n"
+                         + summarize(df).to_markdown(floatfmt=".3g"))
     if args.csv:
         pd.concat(frames).to_csv(args.csv, index=False)
-    print(f"\n{stamp()}")
+    print()
+    write_stamped(args.md, summaries)
 
 
 if __name__ == "__main__":

@@ -39,7 +39,7 @@ class RebuildEveryStep(CvxpyMPC):
 
     def _solve(self, t: float, x: np.ndarray, ctx: StepContext) -> ControlStep:
         Xbar, Ubar = self._linearization_points(x)  # the one-pass linearization
-        A, B, c = self.plant.linearize_trajectory(Xbar, Ubar, self.dt)
+        A, B, c = self.plant.linearize_trajectory(Xbar[:-1], Ubar, self.dt)
         nx, nu, T, p = self.plant.nx, self.plant.nu, self.horizon, self.plant
         X, U = cp.Variable((nx, T + 1)), cp.Variable((nu, T))
         target = TermContext(x0=x, target=ctx.target.T, u_prev=np.zeros(nu))

@@ -14,7 +14,7 @@ the study's program (one pass, rebuilt every step: ``experiments/car_cvxpy/bench
 Zumo: whole ``zumo_bug2`` runs (fatrop, functions compiled) alternate with the same from
 generated C; per-step times pooled.
 
-Prints both tables with their stamp (command, commit, CPU, date); ``--md`` also writes them,
+Prints both tables, each with its stamp (command, commit, CPU, date); ``--md`` also writes them,
 and ``results_casadi.csv`` beside this file keeps the generated-C rows (``key``) that
 experiments/backends/guide.py quotes.
 """
@@ -96,8 +96,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--md", type=Path, help="also write the stamped tables here")
     args = ap.parse_args(argv[1:])
     car_t, zumo_t = car(args.rounds), zumo(args.rounds)
-    write_stamped(args.md, "\n\n".join(t.to_markdown(index=False, floatfmt=".3g")
-                                       for t in (car_t, zumo_t)), argv)
+    write_stamped(args.md, [t.to_markdown(index=False, floatfmt=".3g") for t in (car_t, zumo_t)],
+                  argv)
     both = pd.concat([car_t, zumo_t], ignore_index=True)
     both.insert(0, "key", both["controller"].map(KEYS))
     both.to_csv(HERE / "results_casadi.csv", index=False)

@@ -40,7 +40,7 @@ from mpclab.approx.train import TrainConf, train
 from mpclab.errors import exit_on_bad_input
 from mpclab.experiment import build_run, compose
 from mpclab.policy.mlp import MLP
-from mpclab.provenance import stamped
+from mpclab.provenance import stamp, stamped
 from mpclab.record import jsonable
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -267,6 +267,7 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
             f"{compiled['step_median_us']:.2f} us, p95 {compiled['step_p95_us']:.2f} us; "
             f"MPC median / compiled NN median: **{compiled['speedup_median']:.0f}x**", ""]
         summary["compiled"] = compiled
+    lines += [stamp(), ""]
     evaluate.plot_paths(cmp.pairs, expert_cfg(conf), pub / "paths.png", ev.figure_pairs)
     layout_rows = []
     for layout in ev.layouts:
@@ -285,9 +286,9 @@ def run_eval(conf: PipelineConf, weights: Path, work: Path, pub: Path) -> None:
     if layout_rows:
         lt = pd.DataFrame(layout_rows)
         lines += ["## Layouts the net never saw (random starts)", "",
-                  lt.to_markdown(index=False, floatfmt=".3g"), ""]
+                  lt.to_markdown(index=False, floatfmt=".3g"), "", stamp(), ""]
         summary["layouts"] = layout_rows
-    (pub / "evaluation.md").write_text(stamped("\n".join(lines)))
+    (pub / "evaluation.md").write_text("\n".join(lines))  # each table under its stamp
     (pub / "evaluation.json").write_text(
         json.dumps(jsonable(summary), indent=2, allow_nan=False, default=str) + "\n"
     )

@@ -71,6 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--no-figure", action="store_true", help="tables only")
     parser.add_argument("--pareto", action="store_true",
                         help="also the Pareto front: pareto.csv, pareto.png")
+    parser.add_argument("--points", action="store_true",
+                        help="with --pareto: print every point with its seeds' spread, not "
+                             "only the front")
     parser.add_argument("--objectives", default=None,
                         help="the front's objectives, comma-separated (default: the sweep's "
                              "config's, else arrival_s,step_p95_ms): "
@@ -92,9 +95,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"no run records below {', '.join(map(str, args.paths))}")
     print(tables.markdown_table(report.groups))
     if args.pareto:
-        shown = [c for c in ("overrides", "runs", *points.attrs["objectives"], "knee",
-                             "default") if c in points]
-        print(f"\n## Pareto front\n\n{tables.markdown_table(front(points)[shown])}")
+        objectives = points.attrs["objectives"]
+        if args.points:
+            spread = [f"{o}{s}" for o in objectives for s in ("", "_min", "_max")]
+            shown = ["overrides", "runs", "arrived", *spread, "front", "knee", "default"]
+            title, table = "Every point", points
+        else:
+            shown = ["overrides", "runs", *objectives, "knee", "default"]
+            title, table = "Pareto front", front(points)
+        shown = [c for c in shown if c in table]
+        print(f"\n## {title}\n\n{tables.markdown_table(table[shown])}")
         print(f"\n{stamp()}")
     print(f"\n{len(report.runs)} runs -> " + ", ".join(str(p) for p in report.files.values()))
     return 0
