@@ -38,7 +38,9 @@ class RunProgress:
         A run whose estimated wall time is above this is long: it is announced with its
         estimate and then logged every tenth of the way [s].
     settle_s
-        Wall time before the first estimate (the first steps include warm-up) [s].
+        Wall time after the first step before the first estimate [s]. The rate is measured
+        from the end of the first step on: the first step includes building (and compiling)
+        the controller, which says so itself.
     """
 
     def __init__(self, name: str, live: bool, long_after_s: float = 60.0,
@@ -52,16 +54,22 @@ class RunProgress:
         self._pct = -1
         self._tenth = 0
         self._start = time.perf_counter()
+        self._first: tuple[float, float] | None = None  # (t, wall) after the first step
 
     def __call__(self, t: float, t_max: float) -> None:
         wall = time.perf_counter() - self._start
-        left = wall / t * (t_max - t) if t > 0 else math.inf  # if it runs to t_max
-        if not self.long and wall >= self.settle_s and wall + left > self.long_after_s:
+        if self._first is None and t > 0:
+            self._first = (t, wall)
+        t0, w0 = self._first or (0.0, 0.0)
+        rate = (wall - w0) / (t - t0) if t > t0 else math.inf  # wall s per simulated s
+        left = rate * (t_max - t)  # if it runs to t_max
+        if (not self.long and self._first is not None and wall - w0 >= self.settle_s
+                and wall + left > self.long_after_s):
             self.long = True
             log.warning(
                 "%s: a long run: %.2f s of compute per simulated second so far; about %s "
                 "in all if it runs to t_max = %g s (progress every 10 %%; Ctrl-C keeps the "
-                "steps so far, status 'interrupted')", self.name, wall / t, clock(wall + left),
+                "steps so far, status 'interrupted')", self.name, rate, clock(wall + left),
                 t_max,
             )
         tenth = int(10 * t / t_max)
