@@ -217,25 +217,17 @@ def test_a_long_run_says_so_with_an_estimate(monkeypatch, caplog) -> None:
     assert len(lines) == 10 and "left" in lines[0]  # every tenth of the way
 
 
-def test_a_slow_first_step_is_not_a_long_run(monkeypatch, caplog) -> None:
-    # the first step builds and compiles the controller (12 s); then 0.1 s per step
-    clock = _Clock()
-    monkeypatch.setattr(progress_module.time, "perf_counter", clock)
-    p = RunProgress("compiles", live=False, long_after_s=60.0)
-    with caplog.at_level(logging.INFO, logger="mpclab"):
-        for k in range(1, 301):
-            clock.now = 12.0 + 0.1 * (k - 1)
-            p(0.1 * k, 30.0)
-    assert not caplog.records
-
-
-def test_a_short_run_stays_quiet(monkeypatch, caplog) -> None:
+@pytest.mark.parametrize("wall_at_step", [
+    lambda k: 0.01 * k,               # a short run
+    lambda k: 12.0 + 0.1 * (k - 1),   # the first step builds and compiles (12 s), then short
+], ids=["short", "slow_first_step"])
+def test_a_short_run_stays_quiet(monkeypatch, caplog, wall_at_step) -> None:
     clock = _Clock()
     monkeypatch.setattr(progress_module.time, "perf_counter", clock)
     p = RunProgress("quick", live=False, long_after_s=60.0)
     with caplog.at_level(logging.INFO, logger="mpclab"):
         for k in range(1, 301):
-            clock.now = 0.01 * k
+            clock.now = wall_at_step(k)
             p(0.1 * k, 30.0)
     assert not caplog.records
 
