@@ -22,7 +22,7 @@ from mpclab.controllers.base import Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
-from mpclab.stopping import Terminated
+from mpclab.stopping import interrupted, stopped_by
 from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.clearance import ContinuousClearance
 from mpclab.world.realism import SimWorld, Timing
@@ -138,11 +138,15 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                 raise FloatingPointError(f"state became non-finite at t={k * dt:.3f}: {x}")
             if progress is not None:
                 progress(k * dt, scen.t_max)
-    except Exception as exc:  # the record is still written, with the error in it
-        status, error = "error", f"{type(exc).__name__}: {exc}"
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (mpclab.stopping.Terminated)
-        stopped_by = exc.args[0] if isinstance(exc, Terminated) and exc.args else "Ctrl-C"
-        status, error = "interrupted", f"KeyboardInterrupt ({stopped_by})"
+    except (Exception, KeyboardInterrupt) as exc:  # the record is still written
+        # Ctrl-C, SIGTERM/SIGHUP (mpclab.stopping.Terminated), or one of them handed back
+        # by native code (a solver, CasADi's numpy conversion) as an error of its own
+        stop = exc if isinstance(exc, KeyboardInterrupt) else interrupted(exc)
+        if stop is None:
+            status, error = "error", f"{type(exc).__name__}: {exc}"
+        else:
+            by = stopped_by(stop)
+            status, error = "interrupted", f"KeyboardInterrupt ({by})"
     t_end = k * dt
     log.final(t_end, x, scen.clearance(x))
     steps, horizons = log.tables()
@@ -151,7 +155,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     rec.finish(x, t_end, summary)
     result = RunResult(steps, horizons, summary)
     if status == "interrupted":
-        raise RunInterrupted(result, stopped_by)
+        raise RunInterrupted(result, by)
     return result
 
 

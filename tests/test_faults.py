@@ -23,6 +23,7 @@ from mpclab.controllers.cvxpy import CvxpyMPC
 from mpclab.controllers.nn import NNController
 from mpclab.controllers.scheduled import ScheduledMPC
 from mpclab.experiment import run_experiment
+from mpclab.plants.base import Plant
 from mpclab.progress import RunProgress
 from mpclab.recording.rerun import RerunRecorder
 from mpclab.sweeps.jobs import run_job
@@ -141,6 +142,31 @@ def test_ctrl_c_inside_casadi_stops_the_run(shape, monkeypatch, tmp_path: Path) 
     s = record.read_summary(tmp_path)
     assert s["status"] == "interrupted" and s["n_steps"] == 3
     assert not s.get("solves_exception")
+
+
+def test_an_interrupt_handed_back_by_the_plant_stops_the_run(monkeypatch,
+                                                             tmp_path: Path) -> None:
+    # a stop signal inside CasADi's numpy conversion of the plant's step comes back as a
+    # SystemError raised from the KeyboardInterrupt: the run is interrupted, not an error
+    real = Plant.step
+    calls = {"n": 0}
+
+    def step(self, x, u, dt):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise SystemError("<method '__array__' of 'DM' objects> returned a result "
+                                  "with an exception set") from exc
+        return real(self, x, u, dt)
+
+    monkeypatch.setattr(Plant, "step", step)
+    cfg = compose_cfg(["+experiment=car_cvxpy", "+ci=smoke"])
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(cfg, tmp_path)
+    s = record.read_summary(tmp_path)
+    assert s["status"] == "interrupted" and s["error"] == "KeyboardInterrupt (Ctrl-C)"
 
 
 def test_ctrl_c_on_the_command_line(monkeypatch, capsys, tmp_path: Path) -> None:

@@ -24,7 +24,6 @@ import numpy as np
 import numpy.typing as npt
 
 from mpclab.errors import check_keys, number
-from mpclab.stopping import interrupted
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -121,13 +120,7 @@ class Plant:
 
     def step(self, x: npt.ArrayLike, u: npt.ArrayLike, dt: float) -> FloatArray:
         """One RK4 step of length ``dt`` from ``x`` with ``u`` held."""
-        try:
-            return np.asarray(self.F(x, u, dt), dtype=float).reshape(self.nx)
-        except SystemError as exc:  # a stop signal within CasADi's DM.__array__, handed back
-            stop = interrupted(exc)
-            if stop is None:
-                raise
-            raise stop from exc
+        return np.asarray(self.F(x, u, dt), dtype=float).reshape(self.nx)
 
     def jacobians(
         self, x: npt.ArrayLike, u: npt.ArrayLike, dt: float
