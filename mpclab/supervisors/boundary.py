@@ -55,6 +55,9 @@ class DistanceGrid:
     #: ``(len(ys), len(xs))``, capped at ``cap``
     dist: FloatArray
     cell: float
+    #: the distance's gradient on the grid, ``(2, len(ys), len(xs))`` (x then y; central
+    #: differences)
+    slope: FloatArray
 
     @classmethod
     def around(cls, points: FloatArray, centre: FloatArray, radius: float, cell: float,
@@ -74,15 +77,14 @@ class DistanceGrid:
             window = dist[j0[n]:j1[n], i0[n]:i1[n]]
             near = np.hypot(xs[None, i0[n]:i1[n]] - pts[n, 0], ys[j0[n]:j1[n], None] - pts[n, 1])
             np.minimum(window, near, out=window)
-        return cls(xs, ys, dist, cell)
+        gy, gx = np.gradient(dist, cell)
+        return cls(xs, ys, dist, cell, np.stack([gx, gy]))
 
     def gradient(self, at: FloatArray) -> FloatArray:
-        """``(k, 2)``: the distance's gradient at the grid nodes nearest ``at`` ``(k, 2)``
-        (central differences)."""
-        gy, gx = np.gradient(self.dist, self.cell)
+        """``(k, 2)``: the distance's gradient at the grid nodes nearest ``at`` ``(k, 2)``."""
         i = np.clip(np.rint((at[:, 0] - self.xs[0]) / self.cell).astype(int), 0, len(self.xs) - 1)
         j = np.clip(np.rint((at[:, 1] - self.ys[0]) / self.cell).astype(int), 0, len(self.ys) - 1)
-        return np.c_[gx[j, i], gy[j, i]]
+        return self.slope[:, j, i].T
 
     def level_lines(self, level: float, side: Side) -> list[FloatArray]:
         """The level lines ``d = level`` (< the cap), each ``(k, 2)`` without repeated
@@ -179,14 +181,17 @@ def offset_path(
     level, path = clearance, None
     while path is None:
         # a pocket the robot is not in is not a way on: it is walled off at this level
-        lines = [line for line in grid.level_lines(level, side)
-                 if not encloses_free_space(line, side) or inside(q, line)]
+        lines, pockets = [], []
+        for line in grid.level_lines(level, side):
+            pocket = encloses_free_space(line, side)
+            if not pocket or inside(q, line):
+                lines.append(line)
+                pockets.append(pocket)
         where = join(q if anchor is None else np.asarray(anchor, dtype=float), u, lines)
         if where is None:                       # no line: hold the position
             return np.tile(np.r_[q, heading or 0.0], (n + 1, 1))
         line = lines[where[0]]
-        pocket = encloses_free_space(line, side) and inside(q, line)
-        if not pocket or level - cell < floor - 1e-12:
+        if not pockets[where[0]] or level - cell < floor - 1e-12:
             ahead = walk(line, where[1], spacing, n)
             path = np.vstack([np.r_[q, ahead[0, 2]], ahead])
         level -= cell

@@ -130,7 +130,6 @@ class Bug2(Supervisor):
         self.leave_margin = number(leave_margin, "supervisor.leave_margin")
         self.sight = number(goal_sight_range, "supervisor.goal_sight_range (0: off)",
                             at_least=0)
-
         self.path_speed = number(path_speed, "supervisor.path_speed (0: off)", at_least=0)
         self.clearance = number(clearance, "supervisor.clearance", above=0)
         self.least_clearance = number(least_clearance, "supervisor.least_clearance",
