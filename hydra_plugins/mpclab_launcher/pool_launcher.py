@@ -2,15 +2,15 @@
 
 Hydra's joblib launcher composes every job's config from scratch and its tolerant sweeper
 composes each one again in the launching process before any job starts: that serial part
-dominated a sweep of short jobs (issue 16). This launcher:
+dominated a sweep of short jobs. This launcher:
 
 * starts ``n_jobs`` worker processes once per sweep (``fork`` by default: they inherit the
   imports of the launching process, so none imports anything again); with ``n_jobs=1`` the
   jobs run in the launching process itself;
 * pins each worker's BLAS/OpenMP thread pools to ``threads_per_worker`` threads (one job per
   core, no oversubscription);
-* sends a worker only a job's number and overrides; the worker composes the job's config
-  (jobs that differ only in values share one tree composed by Hydra:
+* sends a worker only a job's number and overrides; the worker (:mod:`._worker`) composes
+  the job's config (jobs that differ only in values share one tree composed by Hydra:
   :mod:`mpclab.sweeps.compose`) and runs it with Hydra's ``run_job`` (job folders,
   ``.hydra/`` files, logging and callbacks as with Hydra's launchers); a config that fails
   to compose becomes the job's error row there (the sweeper does not compose jobs up front);
@@ -39,7 +39,6 @@ import json
 import logging
 import multiprocessing
 import os
-import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -56,10 +55,8 @@ import cloudpickle
 from hydra.core.singleton import Singleton
 from hydra.core.utils import (
     JobReturn,
-    JobStatus,
     configure_log,
     filter_overrides,
-    run_job,
     setup_globals,
 )
 from hydra.plugins.launcher import Launcher
@@ -69,20 +66,23 @@ from threadpoolctl import threadpool_limits
 
 from hydra_plugins.mpclab_launcher import recovery
 from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
+from hydra_plugins.mpclab_launcher._worker import (
+    THREAD_VARS,
+    init_forked,
+    init_pickled,
+    init_worker,
+    run_one,
+)
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init
-from mpclab.stopping import Terminated, call_first_on_stop, signal_of, worker_signals
+from mpclab.stopping import Terminated, call_first_on_stop, signal_of
 from mpclab.sweeps.callbacks import STATE_DIR
 from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
-from mpclab.trust import check_config
 
 log = logging.getLogger(__name__)
 
-#: environment variables that size thread pools of BLAS, OpenMP and friends
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-               "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 TASKS_FILE = "tasks.jsonl"
 #: where the options are, for messages
 KEY = "hydra.launcher"
@@ -94,99 +94,6 @@ class StartMethod(StrEnum):
     fork = "fork"  # a copy of the launching process: its imports, nothing to pickle
     forkserver = "forkserver"
     spawn = "spawn"
-
-
-#: what a worker needs to run a job, set once per worker by :func:`_init_worker`
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(
-    hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
-    composer: JobComposer, singleton_state: dict[Any, Any] | None, threads: int,
-    workers: int, board_cells: Any = None,
-) -> None:
-    """Set up this process to run jobs; ``composer``: the sweep's job configs, with the
-    trees the launching process composed; ``singleton_state``: Hydra's singletons (config
-    store, runtime, resolvers) for a started worker, None where they are this process's own
-    (in the launching process, or forked from it); ``board_cells``: the shared array of the
-    pool's :class:`~.recovery.JobBoard`, where a worker notes each job it starts and ends."""
-    for var in THREAD_VARS:
-        os.environ[var] = str(threads)
-    os.environ[WORKERS_VAR] = str(workers)
-    threadpool_limits(threads)  # pools already loaded (numpy's BLAS) follow the variables
-    setup_globals()
-    if singleton_state is not None:
-        Singleton.set_state(singleton_state)  # and scans Hydra's plugins again
-    board = None if board_cells is None else JobBoard(board_cells)
-    _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function,
-                   board=board, composer=composer)
-
-
-def _init_forked(*args: Any) -> None:
-    """:func:`_init_worker` for a worker process forked from the launching one, with a
-    worker's signal handling (:func:`~mpclab.stopping.worker_signals`), not the launching
-    process's: SIGTERM and SIGHUP end it (the pool stops a worker with SIGTERM), after the
-    job it runs, if any, recorded what it had; SIGINT interrupts its job only."""
-    worker_signals()
-    _init_worker(*args)
-
-
-def _init_pickled(blob: bytes, board_cells: Any = None) -> None:
-    """:func:`_init_worker` for a started (not forked) worker: its arguments cloudpickled
-    (Hydra's configs hold classes that the standard pickle cannot find by name); the shared
-    ``board_cells`` apart (shared memory passes only as the process starts)."""
-    worker_signals()
-    _init_worker(*cloudpickle.loads(blob), board_cells=board_cells)
-
-
-def _run_one(
-    idx: int, overrides: Sequence[str], slot: int | None = None,
-) -> tuple[JobReturn, dict[str, Any]]:
-    """Compose and run job ``idx`` in this worker; the result without its configs. ``slot``:
-    the job's place on the pool's board (None: no board, as in the launching process)."""
-    board = _WORKER.get("board") if slot is not None else None
-    with board.running(slot) if board is not None else contextlib.nullcontext():
-        return _compose_and_run(idx, overrides)
-
-
-def _compose_and_run(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, Any]]:
-    if _WORKER.setdefault("jobs", 0) == 1:
-        # what the first job built stays: out of the garbage collector's way, so that
-        # its full collections (tens of ms over the configs and solvers) do not recur
-        gc.collect()
-        gc.freeze()
-    _WORKER["jobs"] += 1
-    t0, start, cpu0, faults0 = time.perf_counter(), time.time(), time.process_time(), _faults()
-    ctx, config = _WORKER["hydra_context"], _WORKER["config"]
-    try:
-        sweep_config = _WORKER["composer"].job_config(overrides)
-        check_config(sweep_config, app=False)  # its hydra node, before run_job acts on it
-    except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
-        log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
-        ret = record_job_error(ctx, config, idx, overrides, exc)
-    else:
-        with open_dict(sweep_config):
-            sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
-            sweep_config.hydra.job.num = idx
-        ret = run_job(hydra_context=ctx, task_function=_WORKER["task_function"],
-                      config=sweep_config, job_dir_key="hydra.sweep.dir",
-                      job_subdir_key="hydra.sweep.subdir")
-        # the configs stay here: the launching process needs the return value only (and a
-        # config holds schema classes that a started worker's copy of a module redefines)
-        ret.cfg = ret.hydra_cfg = None
-    task_s, cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
-    value = ret.return_value if ret.status == JobStatus.COMPLETED else None
-    timing = value.get("timing", {}) if isinstance(value, dict) else {}
-    # minor faults: a forked worker copies each inherited page it writes (copy on write)
-    faults = None if faults0 is None else _faults() - faults0
-    info = {"job": idx, "pid": os.getpid(), "start": start, "task_s": task_s, "cpu_s": cpu_s,
-            "minor_faults": faults, **timing}
-    return ret, info
-
-
-def _faults() -> int | None:
-    """Minor page faults of this process so far (None where the OS does not say)."""
-    return None if resource is None else resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 
 
 class PoolLauncher(Launcher):
@@ -279,10 +186,10 @@ class PoolLauncher(Launcher):
         saved = {v: os.environ.get(v) for v in (*THREAD_VARS, WORKERS_VAR)}
         limits = threadpool_limits(self.threads)
         try:
-            _init_worker(*init)
-            return {idx: _run_one(idx, ov) for idx, ov in jobs}
+            init_worker(*init)
+            return {idx: run_one(idx, ov) for idx, ov in jobs}
         finally:
-            gc.unfreeze()  # frozen by _run_one after the first job; this process goes on
+            gc.unfreeze()  # frozen by run_one after the first job; this process goes on
             limits.restore_original_limits()
             for var, value in saved.items():
                 if value is None:
@@ -295,9 +202,9 @@ class PoolLauncher(Launcher):
         ctx = multiprocessing.get_context(self.start_method)
         board = JobBoard.new(ctx, len(jobs))
         if self.start_method == "fork":  # inherited, not pickled
-            initializer, initargs = _init_forked, (*init, board.cells)
+            initializer, initargs = init_forked, (*init, board.cells)
         else:
-            initializer, initargs = _init_pickled, (cloudpickle.dumps(init), board.cells)
+            initializer, initargs = init_pickled, (cloudpickle.dumps(init), board.cells)
         results: dict[int, tuple[JobReturn, dict[str, Any]]] = {}
         todo = list(range(len(jobs)))
         while todo:
@@ -317,7 +224,7 @@ class PoolLauncher(Launcher):
                 log.error("a worker process died; the %d job(s) running then run again, each "
                           "in a process of its own, then the %d not started on new workers",
                           len(running), sum(not board.started(slot) for slot in lost))
-            alone = each_alone(ctx, _run_one, initializer, initargs, jobs, running, n,
+            alone = each_alone(ctx, run_one, initializer, initargs, jobs, running, n,
                                self.timeout_s)
             for slot, out in alone.items():
                 idx, overrides = jobs[slot]
@@ -348,7 +255,7 @@ class PoolLauncher(Launcher):
         gc.freeze()
         try:
             with watchdog if watchdog is not None else contextlib.nullcontext():
-                futures: dict[Future, int] = {pool.submit(_run_one, *jobs[slot], slot): slot
+                futures: dict[Future, int] = {pool.submit(run_one, *jobs[slot], slot): slot
                                               for slot in todo}
                 # as_completed waits on every future once; wait() in a loop would register
                 # with every pending future again after each job (quadratic in the jobs)
