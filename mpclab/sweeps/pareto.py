@@ -126,8 +126,8 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
         ax.plot(on[xcol], on[ycol], "-o", color="k", ms=5, zorder=4,
                 label="front (bars: spread over seeds)")
         for i, (_, r) in enumerate(on.iterrows()):  # alternately above and below
-            ax.annotate(_label(r, keys), (r[xcol], r[ycol]), xytext=(6, 6 if i % 2 else -10),
-                        textcoords="offset points", fontsize=7)
+            ax.annotate(point_label(r, keys), (r[xcol], r[ycol]),
+                        xytext=(6, 6 if i % 2 else -10), textcoords="offset points", fontsize=7)
     for flag, style in (("knee", dict(s=220, facecolors="none", edgecolors="tab:red",
                                       linewidths=2, label="knee")),
                         ("default", dict(s=160, marker="*", color="tab:blue",
@@ -161,7 +161,7 @@ def _spread(points: pd.DataFrame, col: str) -> np.ndarray:
     return np.vstack([lo.to_numpy(dtype=float), hi.to_numpy(dtype=float)])
 
 
-def _label(row: pd.Series, keys: Sequence[str]) -> str:
+def point_label(row: pd.Series, keys: Sequence[str]) -> str:
     """A point's parameters, each by the last part of its key (``horizon=10``)."""
     return ", ".join(str(row[k]) if k == "backend" else
                      f"{k.rsplit('.', 1)[-1]}={override_value(row[k])}" for k in keys)

@@ -102,7 +102,7 @@ def pareto_points(
         values = values if isinstance(values, tuple) else (values,)
         point = dict(zip(keys, values, strict=True))
         misses = numeric_column(g, "deadline_misses").fillna(0).sum()
-        row = {**point, "overrides": " ".join(f"{k}={override_value(v)}" for k, v in point.items()),
+        row = {**point, "overrides": point_overrides(point),
                "runs": len(g), "arrived": int((g["status"] == "arrived").sum()),
                "collisions": int((g["status"] == "collision").sum()),
                "errors": int((g["status"] == "error").sum()), "deadline_misses": int(misses),
@@ -119,6 +119,24 @@ def pareto_points(
     out["default"] = _is_default(out, keys, default) if default else False
     out.attrs["keys"], out.attrs["objectives"] = keys, names
     return out
+
+
+def point_overrides(point: Mapping[str, Any]) -> str:
+    """A point's parameters as overrides: ``controller.horizon=10 controller.dt=0.2``."""
+    return " ".join(f"{k}={override_value(v)}" for k, v in point.items())
+
+
+def first_seed_runs(df: pd.DataFrame, points: pd.DataFrame) -> dict[str, str]:
+    """The run folder of each front point's first seed (the lowest), by its ``overrides``:
+    ``df`` the runs table the ``points`` were made from (:func:`pareto_points`)."""
+    keys = points.attrs.get("keys", [])
+    if df.empty or "run_dir" not in df:
+        return {}
+    by_point = df.apply(lambda r: point_overrides({k: r[k] for k in keys}), axis=1)
+    ordered = df.assign(_point=by_point).sort_values(
+        ["seed"] if "seed" in df else ["run_dir"], kind="stable")
+    first = ordered.groupby("_point", sort=False)["run_dir"].first()
+    return {o: str(first[o]) for o in front(points)["overrides"] if o in first.index}
 
 
 def front(points: pd.DataFrame) -> pd.DataFrame:
