@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from omegaconf import OmegaConf
 from rerun.chunk import RrdReader
 
-from conftest import ROOT
+from conftest import ROOT, compose_cfg
 from mpclab.errors import ConfigError
 from mpclab.recording import rerun_blueprint as ent
 from mpclab.recording.merge import entity_name
@@ -206,3 +207,27 @@ def test_first_seed_runs_and_the_rerun_command(tmp_path: Path) -> None:
                     "controller.horizon=6", "seed=0", "recorder=rerun",
                     "hydra/sweeper=pareto_search", f"hydra.run.dir={tmp_path / 'again'}"]
     assert cwd == tmp_path
+
+
+def test_the_bicycle_front_is_configured_on_the_cortex_m4_estimate() -> None:
+    """``+sweep=pareto_bicycle``: the scheduled controller's generated C on the turn under
+    ``sim=embedded_m4``, its grid, and the objectives; the Cortex-M4 estimate is read from
+    each run's summary (none recorded: no value, no front)."""
+    cfg = compose_cfg(["+experiment=bicycle_scheduled", "+sweep=pareto_bicycle"])
+    assert cfg.controller.codegen is True and cfg.scenario.name == "turn"
+    assert cfg.sim.name == "embedded_m4" and cfg.recorder._target_.endswith("base.Recorder")
+    sweep = OmegaConf.load(ROOT / "conf" / "sweep" / "pareto_bicycle.yaml").hydra
+    assert set(sweep.sweeper.params) == {"controller.horizon", "controller.dt",
+                                         "controller.control_horizon"}
+    objectives = parse_objectives(list(sweep.callbacks.sweep.pareto.objectives))
+    assert objectives == (ParetoObjective.tracking_rms_m, ParetoObjective.step_m4_p95_ms)
+    rows = [{"controller.horizon": h, "seed": 0, "run_dir": f"/nowhere/{h}", "status": "arrived",
+             "rms_position": rms, "step_m4_p95_ms": m4}
+            for h, rms, m4 in ((8, 0.3, 0.2), (16, 0.2, 0.4), (32, 0.25, 0.8))]
+    df = pd.DataFrame(rows)
+    df.attrs["params"] = ["controller.horizon", "seed"]
+    pts = pareto_points(df, objectives).set_index("controller.horizon")
+    assert pts["front"].to_dict() == {8: True, 16: True, 32: False}
+    assert pts.loc[32, "step_m4_p95_ms"] == pytest.approx(0.8)
+    none = pareto_points(df.drop(columns="step_m4_p95_ms"), objectives)
+    assert none["step_m4_p95_ms"].isna().all() and not none["front"].any()

@@ -12,6 +12,7 @@ sweep folder. What a point, the front, the knee and the default are:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +34,7 @@ from mpclab.tables.pareto import (
     point_keys,
 )
 
+log = logging.getLogger("mpclab.sweep")
 FILES = {"front": "pareto.csv", "points": "pareto_points.csv", "figure": "pareto.png"}
 MULTIRUN = "multirun.yaml"
 
@@ -94,6 +96,10 @@ def write_pareto(
     chosen = parse_objectives(objectives or sweep_objectives(Path(paths[0])))
     default = shipped_default(Path(paths[0]), point_keys(df), list(df["backend"].unique()))
     points = pareto_points(df, chosen, step_ms, default)
+    for name in points.attrs["objectives"]:
+        if points[name].isna().all():
+            log.warning("pareto: no run below %s has a value of %s, so the front is empty",
+                        ", ".join(map(str, paths)), name)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {key: out_dir / name for key, name in FILES.items()}
     front(points).to_csv(files["front"], index=False)
