@@ -6,17 +6,26 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from omegaconf import OmegaConf
+from rerun.chunk import RrdReader
 
-from conftest import ROOT
+from conftest import ROOT, compose_cfg
 from mpclab.errors import ConfigError
+from mpclab.recording import rerun_blueprint as ent
+from mpclab.recording.merge import entity_name
+from mpclab.sweeps.front_replay import FRONT_RECORDING, rerun_command
+from mpclab.sweeps.pareto import point_label
 from mpclab.sweeps.report import main as tables_main
+from mpclab.tables import REPLAYED_RUNS
 from mpclab.tables.pareto import (
     ParetoObjective,
+    first_seed_runs,
     front,
     override_value,
     pareto_points,
@@ -75,21 +84,31 @@ def test_objectives_and_override_values() -> None:
         "null", "null", "3", "2.5", "[1,2,7]", "casadi"]
 
 
-@pytest.mark.slow
-def test_a_sweep_ends_with_its_front_and_the_tables_tool_writes_it_again(tmp_path: Path,
-                                                                          capsys) -> None:
-    """A car sweep over horizon x control horizon (2 seeds) asking for a front: pareto.csv
-    (the front's points, each with its overrides and its seeds' spread), pareto.png, and the
-    shipped default (horizon 10, every move free) marked; ``--pareto`` writes the same."""
+@pytest.fixture(scope="module")
+def car_front_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A car sweep over horizon x control horizon (2 seeds, no recorder) asking for a front
+    and its replay (``rerun: true``): its folder."""
+    sweep = tmp_path_factory.mktemp("car_front")
     cmd = [sys.executable, "-m", "mpclab", "-m", "+experiment=car_cvxpy", "+ci=smoke",
            "scenario.t_max=4.0", "controller.horizon=6,10", "controller.control_horizon=null,3",
            "seed=0,1",
            "+hydra.callbacks.sweep.pareto.objectives=[arrival_s,step_cpu_p95_ms]",
-           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}"]
+           "+hydra.callbacks.sweep.pareto.rerun=true",
+           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={sweep}"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
-    points = pd.read_csv(tmp_path / "pareto_points.csv")
-    on = pd.read_csv(tmp_path / "pareto.csv")
+    return sweep
+
+
+@pytest.mark.slow
+def test_a_sweep_ends_with_its_front_and_the_tables_tool_writes_it_again(car_front_sweep: Path,
+                                                                          capsys) -> None:
+    """pareto.csv (the front's points, each with its overrides and its seeds' spread),
+    pareto.png, and the shipped default (horizon 10, every move free) marked; ``--pareto``
+    writes the same."""
+    sweep = car_front_sweep
+    points = pd.read_csv(sweep / "pareto_points.csv")
+    on = pd.read_csv(sweep / "pareto.csv")
     assert len(points) == 4 and (points["runs"] == 2).all()
     assert set(on["overrides"]) <= set(points["overrides"]) and len(on) >= 1
     assert on["feasible"].all() and (on["arrived"] == on["runs"]).all()
@@ -97,14 +116,14 @@ def test_a_sweep_ends_with_its_front_and_the_tables_tool_writes_it_again(tmp_pat
     default = points[points["default"]]
     assert list(default["overrides"]) == [
         "controller.horizon=10 controller.control_horizon=null"]
-    assert (tmp_path / "pareto.png").stat().st_size > 0
+    assert (sweep / "pareto.png").stat().st_size > 0
     first = on.set_index("overrides")["arrival_s"]
-    (tmp_path / "pareto.csv").unlink()
-    assert tables_main(["--pareto", "--no-figure", str(tmp_path)]) == 0
-    again = pd.read_csv(tmp_path / "pareto.csv").set_index("overrides")["arrival_s"]
+    (sweep / "pareto.csv").unlink()
+    assert tables_main(["--pareto", "--no-figure", str(sweep)]) == 0
+    again = pd.read_csv(sweep / "pareto.csv").set_index("overrides")["arrival_s"]
     pd.testing.assert_series_equal(again, first)  # the sweep's objectives, read back
     assert "## Pareto front" in capsys.readouterr().out
-    assert tables_main(["--pareto", "--points", "--no-figure", str(tmp_path)]) == 0
+    assert tables_main(["--pareto", "--points", "--no-figure", str(sweep)]) == 0
     out = capsys.readouterr().out  # every point with its spread, then the stamp
     assert "## Every point" in out and "arrival_s_min" in out
     assert "· commit " in out.split("## Every point")[1]
@@ -135,3 +154,80 @@ def test_two_choices_of_one_controller_are_two_backends_and_two_points() -> None
     assert pts.attrs["keys"] == ["backend", "controller.horizon"] and len(pts) == 4
     one = _frame([r for r in rows if r["solver"] == "fatrop"], ["controller.horizon", "seed"])
     assert set(one["backend"]) == {"casadi"}  # one solver: the name alone, as before
+
+
+@pytest.mark.slow
+def test_the_front_replays_side_by_side_in_one_rerun_file(car_front_sweep: Path,
+                                                          capsys) -> None:
+    """The sweep recorded nothing (``+ci=smoke``): its end ran each front point's first seed
+    again with a recording (the same outcome) and merged them under the points' prefixes;
+    ``--rerun`` merges them again, reusing those runs, which the tables leave out."""
+    sweep = car_front_sweep
+    merged = sweep / FRONT_RECORDING
+    on = pd.read_csv(sweep / "pareto.csv")
+    keys = ["controller.horizon", "controller.control_horizon"]
+    labels = {entity_name(point_label(r, keys)) for _, r in on.iterrows()}
+    assert merged.is_file() and not list(sweep.glob("[0-9]*/run.rrd"))
+    assert {p.name for p in (sweep / REPLAYED_RUNS).iterdir()} == labels
+    recorded = {p.name: p.stat().st_mtime_ns for p in (sweep / REPLAYED_RUNS).glob("*/run.rrd")}
+    merged.unlink()
+    assert tables_main(["--pareto", "--rerun", "--no-figure", str(sweep)]) == 0
+    out = capsys.readouterr().out
+    assert f"front replay: {len(on)} points" in out and "differs" not in out
+    assert {p.name: p.stat().st_mtime_ns
+            for p in (sweep / REPLAYED_RUNS).glob("*/run.rrd")} == recorded  # reused
+    assert len(pd.read_csv(sweep / "summary.csv")) == 8  # the sweep's runs only
+    prefixes = defaultdict(set)
+    for chunk in RrdReader(merged).stream():
+        head, _, rest = chunk.entity_path.strip("/").partition("/")
+        prefixes[head].add(rest)
+    assert set(prefixes) - {"__properties"} == labels
+    for label in labels:  # each point's map and signals under its prefix
+        assert {ent.PATH, ent.HORIZON} <= prefixes[label]
+
+
+def test_first_seed_runs_and_the_rerun_command(tmp_path: Path) -> None:
+    """The front's runs of its first seed; the job run again as the sweep ran it, with a
+    recorder, Hydra's own choices kept."""
+    df, step_ms = runs_table()
+    pts = pareto_points(df, OBJ, step_ms)
+    assert first_seed_runs(df.iloc[::-1], pts) == {
+        "controller.horizon=14": "/nowhere/h14/s0", "controller.horizon=10": "/nowhere/h10/s0",
+        "controller.horizon=6": "/nowhere/h6/s0"}
+    job = tmp_path / "3"
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text(
+        "- +experiment=zumo_bug2\n- +sweep=pareto_zumo_search\n- recorder=none\n"
+        "- controller.horizon=6\n- seed=0\n")
+    (job / ".hydra" / "hydra.yaml").write_text(
+        "hydra:\n  overrides:\n    hydra: [hydra/sweeper=pareto_search, hydra.mode=MULTIRUN]\n"
+        f"  runtime:\n    cwd: {tmp_path}\n")
+    args, cwd = rerun_command(job, tmp_path / "again")
+    assert args == ["+experiment=zumo_bug2", "+sweep=pareto_zumo_search",
+                    "controller.horizon=6", "seed=0", "recorder=rerun",
+                    "hydra/sweeper=pareto_search", f"hydra.run.dir={tmp_path / 'again'}"]
+    assert cwd == tmp_path
+
+
+def test_the_bicycle_front_is_configured_on_the_cortex_m4_estimate() -> None:
+    """``+sweep=pareto_bicycle``: the scheduled controller's generated C on the turn under
+    ``sim=embedded_m4``, its grid, and the objectives; the Cortex-M4 estimate is read from
+    each run's summary (none recorded: no value, no front)."""
+    cfg = compose_cfg(["+experiment=bicycle_scheduled", "+sweep=pareto_bicycle"])
+    assert cfg.controller.codegen is True and cfg.scenario.name == "turn"
+    assert cfg.sim.name == "embedded_m4" and cfg.recorder._target_.endswith("base.Recorder")
+    sweep = OmegaConf.load(ROOT / "conf" / "sweep" / "pareto_bicycle.yaml").hydra
+    assert set(sweep.sweeper.params) == {"controller.horizon", "controller.dt",
+                                         "controller.control_horizon"}
+    objectives = parse_objectives(list(sweep.callbacks.sweep.pareto.objectives))
+    assert objectives == (ParetoObjective.tracking_rms_m, ParetoObjective.step_m4_p95_ms)
+    rows = [{"controller.horizon": h, "seed": 0, "run_dir": f"/nowhere/{h}", "status": "arrived",
+             "rms_position": rms, "step_m4_p95_ms": m4}
+            for h, rms, m4 in ((8, 0.3, 0.2), (16, 0.2, 0.4), (32, 0.25, 0.8))]
+    df = pd.DataFrame(rows)
+    df.attrs["params"] = ["controller.horizon", "seed"]
+    pts = pareto_points(df, objectives).set_index("controller.horizon")
+    assert pts["front"].to_dict() == {8: True, 16: True, 32: False}
+    assert pts.loc[32, "step_m4_p95_ms"] == pytest.approx(0.8)
+    none = pareto_points(df.drop(columns="step_m4_p95_ms"), objectives)
+    assert none["step_m4_p95_ms"].isna().all() and not none["front"].any()

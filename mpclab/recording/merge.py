@@ -53,13 +53,12 @@ def find_recordings(paths: Sequence[Path | str]) -> list[Path]:
 
 def run_labels(rrds: Sequence[Path]) -> list[str]:
     """One entity-path-safe prefix per recording, unique, from the overrides that differ."""
-    overrides = [_overrides(p.parent) for p in rrds]
+    overrides = [run_overrides(p.parent) for p in rrds]
     common = set.intersection(*(set(o) for o in overrides)) if overrides else set()
     labels = []
     for rrd, over in zip(rrds, overrides, strict=True):
         differing = [o for o in over if o not in common]
-        label = _safe("_".join(differing)) if differing else _safe(_fallback_name(rrd))
-        labels.append(label)
+        labels.append(entity_name("_".join(differing) if differing else _fallback_name(rrd)))
     seen: dict[str, int] = {}
     for i, label in enumerate(labels):
         if labels.count(label) > 1:
@@ -171,8 +170,8 @@ def _bounds(chunks: Sequence[Any]) -> tuple[float, float, float, float] | None:
     return lo[0] - m, hi[0] + m, lo[1] - m, hi[1] + m
 
 
-def _overrides(run_dir: Path) -> list[str]:
-    """The run's Hydra overrides: ``.hydra/overrides.yaml``, else ``summary.json``'s list."""
+def run_overrides(run_dir: Path) -> list[str]:
+    """A run's Hydra overrides: ``.hydra/overrides.yaml``, else ``summary.json``'s list."""
     path = run_dir / ".hydra" / "overrides.yaml"
     if path.is_file():
         from omegaconf import OmegaConf
@@ -192,7 +191,7 @@ def _fallback_name(rrd: Path) -> str:
     return rrd.parent.name or rrd.stem
 
 
-def _safe(text: str) -> str:
+def entity_name(text: str) -> str:
     """An entity path part: letters, digits, ``_``, ``-`` and ``.`` only."""
     text = re.sub(r"[^A-Za-z0-9_.-]+", "_", text.lstrip("+~")).strip("_")
     return text or "run"

@@ -147,7 +147,8 @@ class SweepCallback(Callback):
     pareto
         ``{objectives: [...]}``: also write the sweep's Pareto front (``pareto.csv``,
         ``pareto.png`` even under ``figures.enabled=false``: :mod:`mpclab.sweeps.pareto`);
-        None: no front.
+        with ``rerun: true``, also ``pareto_front.rrd``, its runs side by side (runs the sweep
+        did not record are run again: :mod:`mpclab.sweeps.front_replay`); None: no front.
     """
 
     def __init__(self, figure: bool = True, x: str = "step_ms",
@@ -199,6 +200,16 @@ class SweepCallback(Callback):
             time.time() - meta["start"],
         ))
 
+    @staticmethod
+    def _replay_front(sweep_dir: Path, points: Any) -> None:
+        """``pareto_front.rrd``; a run that cannot be recorded again is said, not raised."""
+        from mpclab.sweeps.front_replay import replay_front, replay_lines  # rerun, as above
+
+        try:
+            log.info("sweep: %s", replay_lines(*replay_front([sweep_dir], sweep_dir, points)))
+        except (OSError, ValueError) as exc:
+            log.warning("sweep: the front's runs were not merged (%s)", exc)
+
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from mpclab.sweeps.report import write_report  # matplotlib: only when a sweep ends
 
@@ -219,8 +230,10 @@ class SweepCallback(Callback):
             from mpclab.sweeps.pareto import write_pareto  # matplotlib, as the report
 
             # the front's figure is what a sweep asking for a front is for: always drawn
-            _, files = write_pareto([sweep_dir], sweep_dir, self.pareto.get("objectives"))
+            points, files = write_pareto([sweep_dir], sweep_dir, self.pareto.get("objectives"))
             report.files.update({f"pareto:{k}": v for k, v in files.items()})
+            if self.pareto.get("rerun") and not points.empty:
+                self._replay_front(sweep_dir, points)
         if meta is not None:  # when the jobs ended and how long the tables took (benchmarks)
             meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
             (state / SWEEP_FILE).write_text(json.dumps(meta))

@@ -12,6 +12,7 @@ sweep folder. What a point, the front, the knee and the default are:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +34,7 @@ from mpclab.tables.pareto import (
     point_keys,
 )
 
+log = logging.getLogger("mpclab.sweep")
 FILES = {"front": "pareto.csv", "points": "pareto_points.csv", "figure": "pareto.png"}
 MULTIRUN = "multirun.yaml"
 
@@ -94,6 +96,10 @@ def write_pareto(
     chosen = parse_objectives(objectives or sweep_objectives(Path(paths[0])))
     default = shipped_default(Path(paths[0]), point_keys(df), list(df["backend"].unique()))
     points = pareto_points(df, chosen, step_ms, default)
+    for name in points.attrs["objectives"]:
+        if points[name].isna().all():
+            log.warning("pareto: no run below %s has a value of %s, so the front is empty",
+                        ", ".join(map(str, paths)), name)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {key: out_dir / name for key, name in FILES.items()}
     front(points).to_csv(files["front"], index=False)
@@ -124,10 +130,7 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
         ax.errorbar(on[xcol], on[ycol], color="0.35", lw=0.8, capsize=2, zorder=3, alpha=0.4,
                     xerr=_spread(on, xcol), yerr=_spread(on, ycol), fmt="none")
         ax.plot(on[xcol], on[ycol], "-o", color="k", ms=5, zorder=4,
-                label="front (bars: spread over seeds)")
-        for i, (_, r) in enumerate(on.iterrows()):  # alternately above and below
-            ax.annotate(_label(r, keys), (r[xcol], r[ycol]), xytext=(6, 6 if i % 2 else -10),
-                        textcoords="offset points", fontsize=7)
+                label="front (bars: its seeds' min to max)")
     for flag, style in (("knee", dict(s=220, facecolors="none", edgecolors="tab:red",
                                       linewidths=2, label="knee")),
                         ("default", dict(s=160, marker="*", color="tab:blue",
@@ -146,12 +149,48 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
         ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
         ax.xaxis.set_minor_formatter(plt.FuncFormatter(  # 2 and 5 of each decade, plainly
             lambda v, _: f"{v:g}" if f"{v:g}"[0] in "25" else ""))
+    _frame_medians(ax, points, xcol, ycol)
+    for i, (_, r) in enumerate(on.iterrows()):  # alternately above and below
+        _annotate(ax, point_label(r, keys), r[xcol], r[ycol], 6 if i % 2 else -12, "k")
+    for _, r in points[points["default"] & ~points["front"]].iterrows():  # named, off the front
+        _annotate(ax, f"default: {point_label(r, keys)}", r[xcol], r[ycol], 8, "tab:blue")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8,
+              frameon=False)  # below the axes: no point hides behind it
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return Path(path)
+
+
+#: a label's background, so that it reads over the lines and bars behind it
+_LABEL_BOX = dict(boxstyle="round,pad=0.15", facecolor="white", edgecolor="none", alpha=0.75)
+
+
+def _annotate(ax: Any, text: str, x: float, y: float, dy: float, color: str) -> None:
+    """``text`` beside the point ``(x, y)``: to its right in the frame's left half, to its
+    left in the right half (so that it stays in the frame)."""
+    right_half = ax.transLimits.transform(ax.transScale.transform((x, y)))[0] > 0.5
+    ax.annotate(text, (x, y), xytext=(-10 if right_half else 8, dy), textcoords="offset points",
+                ha="right" if right_half else "left", fontsize=7, color=color, bbox=_LABEL_BOX)
+
+
+def _frame_medians(ax: Any, points: pd.DataFrame, xcol: str, ycol: str) -> None:
+    """Limits that hold the feasible points and the default with a margin: the seeds'
+    spread (a layout's difficulty more than a configuration's) and the excluded points run
+    out of the frame rather than squeezing the front into a corner."""
+    shown = points[points["feasible"] | points["default"]]
+    for col, set_lim, log in ((xcol, ax.set_xlim, ax.get_xscale() == "log"),
+                              (ycol, ax.set_ylim, False)):
+        v = pd.to_numeric(shown[col], errors="coerce").dropna()
+        if v.empty:
+            continue
+        lo, hi = float(v.min()), float(v.max())
+        if log:
+            set_lim(lo / 1.3, hi * 1.3)
+        else:
+            pad = 0.12 * ((hi - lo) or abs(hi) or 1.0)
+            set_lim(max(lo - pad, 0.0) if lo >= 0 else lo - pad, hi + pad)
 
 
 def _spread(points: pd.DataFrame, col: str) -> np.ndarray:
@@ -161,7 +200,7 @@ def _spread(points: pd.DataFrame, col: str) -> np.ndarray:
     return np.vstack([lo.to_numpy(dtype=float), hi.to_numpy(dtype=float)])
 
 
-def _label(row: pd.Series, keys: Sequence[str]) -> str:
+def point_label(row: pd.Series, keys: Sequence[str]) -> str:
     """A point's parameters, each by the last part of its key (``horizon=10``)."""
     return ", ".join(str(row[k]) if k == "backend" else
                      f"{k.rsplit('.', 1)[-1]}={override_value(row[k])}" for k in keys)

@@ -6,7 +6,8 @@ aggregates every run record found below the given folders (one sweep, several sw
 ``arrival_vs_compute.png`` in ``--out`` (default: the first PATH), and for a sweep over a
 numeric ``sim.*`` level (noise, latency scale, mismatch) ``robustness_<level>.png``; with
 ``--pareto`` also the Pareto front (``pareto.csv``, ``pareto.png``, ``pareto_points.csv``:
-:mod:`mpclab.sweeps.pareto`). The multirun callback does the same for each sweep folder when
+:mod:`mpclab.sweeps.pareto`), and with ``--rerun`` its runs side by side in one Rerun file
+(:mod:`mpclab.sweeps.front_replay`). The multirun callback does the same for each sweep folder when
 it ends, from the rows the jobs streamed.
 """
 
@@ -23,6 +24,7 @@ from mpclab import tables
 from mpclab.errors import ConfigError, exit_on_bad_input
 from mpclab.provenance import stamp
 from mpclab.sweeps.figure import plot_arrival_vs_compute
+from mpclab.sweeps.front_replay import FRONT_RECORDING, replay_front, replay_lines
 from mpclab.sweeps.pareto import write_pareto
 from mpclab.sweeps.robustness import plot_robustness, robustness_levels
 from mpclab.tables import XAxis
@@ -74,12 +76,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--points", action="store_true",
                         help="with --pareto: print every point with its seeds' spread, not "
                              "only the front")
+    parser.add_argument("--rerun", action="store_true",
+                        help=f"with --pareto: also {FRONT_RECORDING}, the front's runs (each "
+                             "point's first seed) side by side in Rerun; runs the sweep did "
+                             f"not record are run again into {tables.REPLAYED_RUNS}/")
     parser.add_argument("--objectives", default=None,
                         help="the front's objectives, comma-separated (default: the sweep's "
                              "config's, else arrival_s,step_p95_ms): "
                              + ", ".join(o.value for o in ParetoObjective))
     args = parser.parse_args(argv)
     out = args.out or args.paths[0]
+    if (args.points or args.rerun) and not args.pareto:
+        parser.error("--points and --rerun go with --pareto")
     for path in args.paths:
         if not path.exists():
             parser.error(f"no such folder: {path}")
@@ -89,6 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             points, files = write_pareto(args.paths, out, args.objectives,
                                          figure=not args.no_figure)
             report.files.update({f"pareto:{k}": v for k, v in files.items()})
+            if args.rerun:
+                merged, replayed = replay_front(args.paths, out, points)
     except (OSError, ConfigError) as exc:  # an --out that cannot be written, a bad objective
         exit_on_bad_input(parser, exc)
     if report.runs.empty:
@@ -106,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         shown = [c for c in shown if c in table]
         print(f"\n## {title}\n\n{tables.markdown_table(table[shown])}")
         print(f"\n{stamp()}")
+    if args.rerun:
+        print("\n" + replay_lines(merged, replayed))
     print(f"\n{len(report.runs)} runs -> " + ", ".join(str(p) for p in report.files.values()))
     return 0
 

@@ -70,8 +70,14 @@ ROWS_FILE = Path(".mpclab") / "rows.jsonl"
 CONTENDED_SHARE = 0.9
 
 
+#: a sweep's runs recorded again to replay its front (:mod:`mpclab.sweeps.front_replay`):
+#: copies of runs the sweep holds, so not rows of its tables
+REPLAYED_RUNS = "front_runs"
+
+
 def find_runs(paths: Iterable[Path]) -> list[Path]:
-    """Every run folder (holding ``summary.json`` or ``.hydra/``) at or below ``paths``."""
+    """Every run folder (holding ``summary.json`` or ``.hydra/``) at or below ``paths``, but
+    none in a hidden folder or in :data:`REPLAYED_RUNS`."""
     found: set[Path] = set()
     for path in map(Path, paths):
         if not path.exists():
@@ -82,7 +88,8 @@ def find_runs(paths: Iterable[Path]) -> list[Path]:
                 found.add(here.resolve())
                 dirnames.clear()  # a run folder holds no further runs
             else:
-                dirnames[:] = [d for d in dirnames if not d.startswith(".")]
+                dirnames[:] = [d for d in dirnames
+                               if not d.startswith(".") and d != REPLAYED_RUNS]
     return sorted(found)
 
 

@@ -7,6 +7,8 @@ seed, over all its seeds (layouts). Each objective is minimized (:class:`ParetoO
 * ``tracking_rms_m``: the position tracking RMS [m];
 * ``step_p95_ms``: the 95th percentile of the controller's wall time per call [ms];
 * ``step_cpu_p95_ms``: the same in CPU time (for a sweep that ran contended) [ms];
+* ``step_m4_p95_ms``: the run's Cortex-M4 estimate per controller call, 95th percentile, as
+  its summary records it [ms];
 
 each per seed, and the point's value the median over its seeds, with the seeds' spread
 beside it (``_min``, ``_max``). A point is **feasible** when
@@ -39,6 +41,7 @@ class ParetoObjective(StrEnum):
     tracking_rms_m = "tracking_rms_m"
     step_p95_ms = "step_p95_ms"
     step_cpu_p95_ms = "step_cpu_p95_ms"
+    step_m4_p95_ms = "step_m4_p95_ms"
 
 
 #: each objective's axis label
@@ -48,10 +51,13 @@ LABELS = {
     ParetoObjective.step_p95_ms: "compute per controller call, p95 (wall), median over seeds [ms]",
     ParetoObjective.step_cpu_p95_ms: "compute per controller call, p95 (CPU), median over seeds "
                                      "[ms]",
+    ParetoObjective.step_m4_p95_ms: "Cortex-M4 estimate per controller call, p95, median over "
+                                    "seeds [ms]",
 }
 #: the summary field a per-seed objective is the median of
 _PER_SEED = {ParetoObjective.arrival_s: "arrival_time_s",
-             ParetoObjective.tracking_rms_m: "rms_position"}
+             ParetoObjective.tracking_rms_m: "rms_position",
+             ParetoObjective.step_m4_p95_ms: "step_m4_p95_ms"}
 #: the objectives of a sweep that says none
 DEFAULT_OBJECTIVES = (ParetoObjective.arrival_s, ParetoObjective.step_p95_ms)
 
@@ -102,7 +108,7 @@ def pareto_points(
         values = values if isinstance(values, tuple) else (values,)
         point = dict(zip(keys, values, strict=True))
         misses = numeric_column(g, "deadline_misses").fillna(0).sum()
-        row = {**point, "overrides": " ".join(f"{k}={override_value(v)}" for k, v in point.items()),
+        row = {**point, "overrides": point_overrides(point),
                "runs": len(g), "arrived": int((g["status"] == "arrived").sum()),
                "collisions": int((g["status"] == "collision").sum()),
                "errors": int((g["status"] == "error").sum()), "deadline_misses": int(misses),
@@ -119,6 +125,24 @@ def pareto_points(
     out["default"] = _is_default(out, keys, default) if default else False
     out.attrs["keys"], out.attrs["objectives"] = keys, names
     return out
+
+
+def point_overrides(point: Mapping[str, Any]) -> str:
+    """A point's parameters as overrides: ``controller.horizon=10 controller.dt=0.2``."""
+    return " ".join(f"{k}={override_value(v)}" for k, v in point.items())
+
+
+def first_seed_runs(df: pd.DataFrame, points: pd.DataFrame) -> dict[str, str]:
+    """The run folder of each front point's first seed (the lowest), by its ``overrides``:
+    ``df`` the runs table the ``points`` were made from (:func:`pareto_points`)."""
+    keys = points.attrs.get("keys", [])
+    if df.empty or "run_dir" not in df:
+        return {}
+    by_point = df.apply(lambda r: point_overrides({k: r[k] for k in keys}), axis=1)
+    ordered = df.assign(_point=by_point).sort_values(
+        ["seed"] if "seed" in df else ["run_dir"], kind="stable")
+    first = ordered.groupby("_point", sort=False)["run_dir"].first()
+    return {o: str(first[o]) for o in front(points)["overrides"] if o in first.index}
 
 
 def front(points: pd.DataFrame) -> pd.DataFrame:
