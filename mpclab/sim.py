@@ -123,7 +123,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step
             cs.info[CPU_COLUMN] = time.thread_time() - c0  # unlike wall time, not inflated
             # when other processes take the core (parallel sweeps)
-            if world.noisy:
+            if world.estimated:  # noise or odometry: what the robot believed
                 cs.info["x_measured"] = measured
             if world.delayed:
                 cs.info["latency_s"] = timing.latency_s
@@ -192,11 +192,15 @@ class _StepLog:
         self.plant = plant
         self.horizon = horizon
         self.dt = dt  # the control period, between a horizon's nodes
-        #: what the world adds to the log: the measured state, the input's timing
-        self.noisy = world is not None and world.noisy
+        #: what the world adds to the log: the measured state, the input's timing, the
+        #: actuators' output
+        self.world = world
+        self.estimated = world is not None and world.estimated
         self.delayed = world is not None and world.delayed
+        self.actuated = world is not None and world.actuated
         self.measured: list[np.ndarray] = []
         self.timing: list[Timing] = []
+        self.actual: list[np.ndarray] = []
         self.extra: dict[str, list[Any]] = {key: [] for key in extra}
         self.t: list[float] = []
         self.xs: list[np.ndarray] = []
@@ -212,10 +216,12 @@ class _StepLog:
         timing: Timing | None = None,
     ) -> None:
         """``clearance``: at ``t``, and the least over the period that starts at ``t``."""
-        if self.noisy:
+        if self.estimated:
             self.measured.append(np.asarray(measured, dtype=float).copy())
         if self.delayed:
             self.timing.append(timing)
+        if self.actuated:
+            self.actual.append(self.world.actuator.output.copy())
         self.t.append(t)
         self.xs.append(x.copy())
         self.us.append(np.asarray(cs.u, dtype=float).copy())
@@ -262,9 +268,11 @@ class _StepLog:
         return steps, self._horizons()
 
     def _world_columns(self, steps: pd.DataFrame) -> None:
-        """The measured state (``meas_<label>``) and, under latency, when each input acted:
-        ``latency_s``, ``deadline_miss``, ``switch_t`` (NaN: never) and the input in effect
-        after it (``applied_<label>``). NaN in the final row."""
+        """The state the controller saw (``meas_<label>``: with noise or odometry), under
+        latency when each input acted: ``latency_s``, ``deadline_miss``, ``switch_t`` (NaN:
+        never) and the input in effect after it (``applied_<label>``), and with actuators
+        their output at the row's time (``actual_<label>``; the commanded input is
+        ``<label>``). NaN in the final row."""
         p, n = self.plant, len(self.t)
 
         def padded(values: list[Any], width: int) -> np.ndarray:
@@ -273,7 +281,7 @@ class _StepLog:
                 out[: len(values)] = np.asarray(values, dtype=float).reshape(len(values), width)
             return out
 
-        if self.noisy:
+        if self.estimated:
             meas = padded(self.measured, p.nx)
             for i, label in enumerate(p.states):
                 steps[f"meas_{label}"] = meas[:, i]
@@ -288,6 +296,10 @@ class _StepLog:
             applied = padded([tm.applied for tm in self.timing], p.nu)
             for j, label in enumerate(p.inputs):
                 steps[f"applied_{label}"] = applied[:, j]
+        if self.actuated:
+            actual = padded(self.actual, p.nu)
+            for j, label in enumerate(p.inputs):
+                steps[f"actual_{label}"] = actual[:, j]
 
     def _horizons(self) -> pd.DataFrame:
         p, H = self.plant, self.horizon

@@ -28,10 +28,17 @@ instant the state was measured, and the simulator integrates the controller's ow
 * **model mismatch** (``plant_params.<name>``, ``substeps``): the simulated plant has other
   parameters (and a finer integrator) than the one the controller predicts with; the same
   ``rhs``.
+* **localization** (``localization``: ``truth`` or ``odometry``; ``odometry``,
+  ``localization_fix``): the state the controller and the supervisor see is the true one or
+  a dead-reckoning estimate integrated with the model's parameters, optionally reset towards
+  an absolute fix (:mod:`mpclab.world.localization`); the noise above is added to it.
+* **actuators** (``actuator.time_constant_s``, ``actuator.rate_limit``): the plant sees the
+  output of a first-order lag and/or a rate limit of the command, not the command itself
+  (:mod:`mpclab.world.actuators`).
 
 Every draw comes from generators seeded by the run's seed (streams of their own, so a
 scenario's random layout does not change when noise is switched on, nor the noise when a
-recorded latency is).
+recorded latency or the odometry's errors are).
 """
 
 from __future__ import annotations
@@ -40,36 +47,22 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import StrEnum
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
-from mpclab.config import CONF_DIR
 from mpclab.errors import ConfigError, check_keys, number, parse_choice
 from mpclab.plants.base import FloatArray, Plant
-from mpclab.registry import component
+from mpclab.registry import component, schema_from_init
+from mpclab.world.actuators import Actuator
+from mpclab.world.latency import DeadlinePolicy, Latency, latency_profile_s, parse_latency
+from mpclab.world.localization import Fix, Localization, Odometry, state_stds
 
 #: the spawn keys of the world's random streams under the run's seed: noise and
-#: disturbance, recorded latencies
+#: disturbance, recorded latencies, the odometry's errors and fixes
 _STREAM = 7
 _LATENCY_STREAM = 8
-
-
-class Latency(StrEnum):
-    none = "none"
-    measured = "measured"
-    fixed = "fixed"  # given as a number of ms
-    one_sample = "one_sample"  # computed from the predicted next state, acts one period late
-    recorded = "recorded"  # drawn, seeded, from latency_profile
-
-
-class DeadlinePolicy(StrEnum):
-    hold = "hold"  # the input applied before holds for the period
-    plan = "plan"  # the next input of the last plan that met its deadline
-    late_apply = "late_apply"  # acts when ready; the solves it overran are skipped
+_ODOMETRY_STREAM = 9
 
 
 @dataclass
@@ -81,6 +74,22 @@ class NoiseConf:
 @dataclass
 class DisturbanceConf:
     state_std: dict[str, float] = field(default_factory=dict)
+
+
+def _nested(cls: type, name: str) -> type:
+    """The schema of a nested option group: one field per option of ``cls``'s constructor
+    (its injected ``model``, ``plant`` and ``rng`` left out), as a component's."""
+    derived = schema_from_init(cls, ("model", "plant", "rng"))
+    schema = dataclasses.make_dataclass(name, [
+        (f.name, f.type, dataclasses.field(default=f.default, default_factory=f.default_factory))
+        for f in dataclasses.fields(derived) if f.name != "_target_"])
+    schema.__module__ = __name__  # importable by name: configs holding it pickle
+    return schema
+
+
+OdometryConf = _nested(Odometry, "OdometryConf")
+FixConf = _nested(Fix, "FixConf")
+ActuatorConf = _nested(Actuator, "ActuatorConf")
 
 
 @dataclass
@@ -96,6 +105,10 @@ class SimConf:
     disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
     plant_params: dict[str, float] = field(default_factory=dict)
     substeps: int = 1              # RK4 sub-intervals of the simulated plant per step
+    localization: str = "truth"    # truth | odometry
+    odometry: OdometryConf = field(default_factory=OdometryConf)  # type: ignore[valid-type]
+    localization_fix: FixConf = field(default_factory=FixConf)  # type: ignore[valid-type]
+    actuator: ActuatorConf = field(default_factory=ActuatorConf)  # type: ignore[valid-type]
 
 
 @dataclass
@@ -117,7 +130,8 @@ class Timing:
 
 
 @component("sim", "sim", SimConf, open_keys=(
-    "plant_params", "noise.state_std", "disturbance.state_std"))
+    "plant_params", "noise.state_std", "disturbance.state_std", "odometry.input_std",
+    "odometry.quantum", "localization_fix.std"))
 class SimWorld:
     """The simulated world around the controller (see the module docstring).
 
@@ -146,13 +160,18 @@ class SimWorld:
         disturbance: Mapping[str, Any] | None = None,
         plant_params: Mapping[str, float] | None = None,
         substeps: int = 1,
+        localization: str = "truth",
+        odometry: Mapping[str, Any] | None = None,
+        localization_fix: Mapping[str, Any] | None = None,
+        actuator: Mapping[str, Any] | None = None,
     ) -> None:
         self.name = str(name)
         self.dt = float(dt)
-        self.latency, self.fixed_latency_s = _latency(latency)
+        self.latency, self.fixed_latency_s = parse_latency(latency)
         self.latency_scale = _positive(latency_scale, "sim.latency_scale")
         self.latency_profile = latency_profile
-        self.profile_s = _profile(latency_profile) if self.latency is Latency.recorded else None
+        self.profile_s = (latency_profile_s(latency_profile)
+                          if self.latency is Latency.recorded else None)
         period_ms = 1e3 * self.dt
         self.deadline_s = (self.dt if deadline_ms is None
                            else _positive(deadline_ms, "sim.deadline_ms") / 1e3)
@@ -162,21 +181,39 @@ class SimWorld:
         self.policy = parse_choice(DeadlinePolicy, deadline_policy, "sim.deadline_policy")
         noise = dict(noise or {})
         check_keys(noise, [f.name for f in dataclasses.fields(NoiseConf)], "sim.noise")
-        self.state_std = _stds(plant, noise.get("state_std") or {}, "sim.noise.state_std")
+        self.state_std = state_stds(plant, noise.get("state_std") or {}, "sim.noise.state_std")
         self.range_std = _nonneg(noise.get("range_std", 0.0), "sim.noise.range_std")
         disturbance = dict(disturbance or {})
         check_keys(disturbance, ["state_std"], "sim.disturbance")
-        self.walk_std = _stds(plant, disturbance.get("state_std") or {},
-                              "sim.disturbance.state_std")
+        self.walk_std = state_stds(plant, disturbance.get("state_std") or {},
+                                   "sim.disturbance.state_std")
         if int(substeps) < 1:
             raise ConfigError(f"sim.substeps must be an integer >= 1, got {substeps}")
         self.substeps = int(substeps)
         self.plant_params = dict(plant_params or {})
+        self.model = plant
         self.plant = plant.variant(self.plant_params, self.substeps, where="sim.plant_params")
         self.rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_STREAM,)))
-        #: what the world adds to the loop, decided once: state noise, input latency
+        self.localization = parse_choice(Localization, localization, "sim.localization")
+        odometry_rng = np.random.default_rng(
+            np.random.SeedSequence(int(seed), spawn_key=(_ODOMETRY_STREAM,)))
+        self.odometry = Odometry(plant, odometry_rng,
+                                 **_group(odometry, OdometryConf, "sim.odometry"))
+        self.fix = Fix(plant, odometry_rng,
+                       **_group(localization_fix, FixConf, "sim.localization_fix"))
+        self.dead_reckoning = self.localization is Localization.odometry
+        if not self.dead_reckoning and (self.odometry.configured or self.fix.configured):
+            what = (f"sim.odometry ({self.odometry.describe()})" if self.odometry.configured
+                    else f"sim.localization_fix.period_s={self.fix.period_s:g}")
+            raise ConfigError(f"{what}: acts only with sim.localization=odometry, got "
+                              f"sim.localization={self.localization.value}")
+        self.actuator = Actuator(**_group(actuator, ActuatorConf, "sim.actuator"))
+        #: what the world adds to the loop, decided once: state noise, input latency, a
+        #: state the controller sees other than the true one (noise or odometry), actuators
         self.noisy = bool(self.state_std.any())
         self.delayed = self.latency is not Latency.none
+        self.estimated = self.noisy or self.dead_reckoning
+        self.actuated = self.actuator.active
         self._walk = bool(self.walk_std.any())
         self._plan: FloatArray | None = None  # the inputs of the last plan in time
         self._plan_age = 0
@@ -186,6 +223,7 @@ class SimWorld:
             self.fixed_latency_s * self.latency_scale
         if self.profile_s is not None:
             self._expected_s = float(np.median(self.profile_s)) * self.latency_scale
+        self.reset(plant.nu)
 
     # ---------------------------------------------------------------- what it adds
 
@@ -194,12 +232,21 @@ class SimWorld:
         if self.latency is Latency.measured:
             self._expected_s = 0.0
         self.applied = np.zeros(nu)
+        self.actuator.reset(nu)
+        self.fix.reset()
+        self._t, self._started = 0.0, False
+        self._errors: list[float] = []  # the estimate's position error after each period
 
     def measure(self, x: FloatArray) -> FloatArray:
-        """The state the controller sees (``x`` itself when there is no state noise)."""
+        """The state the controller sees at the true state ``x``: ``x`` itself, or the
+        odometry's estimate (started at the first ``x``), plus the state noise."""
+        if self.dead_reckoning and not self._started:
+            self.odometry.reset(x)
+        self._started = True
+        seen = self.odometry.estimate.copy() if self.dead_reckoning else x
         if not self.noisy:
-            return x
-        return x + self.state_std * self.rng.standard_normal(x.shape)
+            return seen
+        return seen + self.state_std * self.rng.standard_normal(x.shape)
 
     def perturb_ranges(self, ranges: FloatArray) -> FloatArray:
         """Range readings with the sensor's noise (rays that see nothing stay ``inf``)."""
@@ -250,10 +297,16 @@ class SimWorld:
         return Timing(tau, True, held)
 
     def pieces(self, timing: Timing) -> list[tuple[FloatArray, float]]:
-        """The inputs that act until the next controller call, in order, with how long
-        each holds ``[(input, duration [s])]``: the applied input until the switch, the new
-        one after it (a missed deadline under ``hold`` or ``plan``: one input for the whole
-        period; ``late_apply``: over as many periods as the board was busy)."""
+        """The inputs the plant sees until the next controller call, in order, with how
+        long each holds ``[(input, duration [s])]``: the :meth:`commands`, or the actuators'
+        response to them in short pieces."""
+        return self.actuator.respond(self.commands(timing), self.dt)[0]
+
+    def commands(self, timing: Timing) -> list[tuple[FloatArray, float]]:
+        """The commands in effect until the next controller call ``[(input, duration)]``:
+        the applied input until the switch, the new one after it (a missed deadline under
+        ``hold`` or ``plan``: one input for the whole period; ``late_apply``: over as many
+        periods as the board was busy)."""
         span, tau = self.dt * timing.periods, timing.latency_s
         if (timing.missed and not timing.late) or tau <= 0.0:
             return [(timing.applied, span)]
@@ -264,13 +317,22 @@ class SimWorld:
     def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
         """The true state at the next controller call (one control period later, more under
         ``late_apply``): the :meth:`pieces` integrated one after the other, then the
-        disturbance."""
-        for u, duration in self.pieces(timing):
+        disturbance; the odometry integrates the same pieces, then takes a fix if one is
+        due."""
+        pieces, output = self.actuator.respond(self.commands(timing), self.dt)
+        for u, duration in pieces:
             x = self.plant.step(x, u, duration)
+        self.actuator.commit(output)
         dt = self.dt * timing.periods
         self.applied = timing.applied
         if self._walk:
             x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
+        if self.dead_reckoning:
+            self._t += dt
+            estimate = self.odometry.advance(pieces)
+            self.odometry.estimate = self.fix.correct(self._t, x, estimate)
+            at = [self.model.state_index(label) for label in self.model.position]
+            self._errors.append(float(np.linalg.norm(self.odometry.estimate[at] - x[at])))
         return x
 
     def describe(self) -> dict[str, Any]:
@@ -283,52 +345,15 @@ class SimWorld:
             "sim_latency_scale": self.latency_scale,
             "sim_latency_profile": self.latency_profile if self.profile_s is not None else None,
             "sim_plant_params": dict(self.plant_params),
+            "sim_localization": self.localization.value,
+            "sim_odometry": self.odometry.describe() if self.dead_reckoning else None,
+            "sim_localization_fix": self.fix.describe() or None,
+            "sim_actuator": self.actuator.describe() if self.actuated else None,
+            # the estimate's position error [m], after every period and at the end
+            "localization_error_max_m": max(self._errors) if self._errors else None,
+            "localization_error_final_m": self._errors[-1] if self._errors else None,
+            "localization_fixes": self.fix.count if self.fix.configured else None,
         }
-
-
-def _latency(value: Any) -> tuple[Latency, float]:
-    if isinstance(value, bool):
-        raise ConfigError(f"sim.latency must be none, measured, one_sample, recorded or a "
-                          f"number of ms, got {value}")
-    if isinstance(value, int | float):
-        return Latency.fixed, _nonneg(value, "sim.latency") / 1e3
-    text = str(value)
-    try:
-        ms = float(text)
-    except ValueError:
-        ms = None
-    if ms is not None:  # a number given as text (the command line): checked as a number
-        return Latency.fixed, _nonneg(ms, "sim.latency") / 1e3
-    if text == Latency.fixed.value:
-        raise ConfigError("sim.latency: give the fixed latency as a number of ms, e.g. 33.8")
-    return parse_choice(Latency, text, "sim.latency"), 0.0
-
-
-def _profile(path: str | None) -> FloatArray:
-    """The latencies [s] of ``sim.latency_profile``: the ``latency_s`` column of a CSV or
-    Parquet file (NaN rows, as a step log's final one, dropped). A relative path is read
-    from the working folder, else from the config folder (the shipped profiles)."""
-    key = "sim.latency_profile"
-    if not path:
-        raise ConfigError(f"{key}: sim.latency=recorded needs a file with a latency_s column "
-                          f"(e.g. {key}=sim/profiles/zumo_bug2_fatrop.csv)")
-    file = Path(str(path)).expanduser()
-    if not file.is_absolute() and not file.exists() and (CONF_DIR / file).exists():
-        file = CONF_DIR / file
-    if not file.is_file():
-        raise ConfigError(f"{key}: no file {str(path)!r} (from the working folder or {CONF_DIR})")
-    if file.suffix not in (".csv", ".parquet"):
-        raise ConfigError(f"{key}: {str(path)!r} must be a .csv or .parquet file")
-    table = pd.read_parquet(file) if file.suffix == ".parquet" else \
-        pd.read_csv(file, comment="#")
-    if "latency_s" not in table:
-        raise ConfigError(f"{key}: {str(path)!r} has no latency_s column; columns: "
-                          f"{', '.join(map(str, table.columns))}")
-    values = pd.to_numeric(table["latency_s"], errors="coerce").dropna().to_numpy(dtype=float)
-    if not len(values) or not np.all(np.isfinite(values)) or values.min() < 0:
-        raise ConfigError(f"{key}: {str(path)!r}: latency_s must hold finite values >= 0 "
-                          f"(at least one)")
-    return values
 
 
 def _nonneg(value: Any, key: str) -> float:
@@ -339,18 +364,8 @@ def _positive(value: Any, key: str) -> float:
     return number(value, key, above=0)
 
 
-def _stds(plant: Plant, given: Mapping[str, Any], key: str) -> FloatArray:
-    """Standard deviations by state label -> a vector over the plant's states. Two roles
-    stand for labels of any plant: ``position`` (both coordinates) and ``heading``; a label
-    given as well wins."""
-    roles = {"position": list(plant.position), "heading": [plant.heading] if plant.heading else []}
-    check_keys(given, [*plant.states, *roles], key)
-    std = np.zeros(plant.nx)
-    for role, labels in roles.items():
-        if role in given:
-            for label in labels:
-                std[plant.state_index(label)] = _nonneg(given[role], f"{key}.{role}")
-    for label, value in given.items():
-        if label not in roles:
-            std[plant.state_index(label)] = _nonneg(value, f"{key}.{label}")
-    return std
+def _group(given: Mapping[str, Any] | None, schema: type, key: str) -> dict[str, Any]:
+    """A nested option group as keyword arguments; a key it does not have is an error."""
+    options = dict(given or {})
+    check_keys(options, [f.name for f in dataclasses.fields(schema)], key)
+    return options
