@@ -30,10 +30,13 @@ pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"PIL needs {', '.join(MIS
 #: to float, on inputs of order 1
 TOL = {pil.Precision.double: 1e-12, pil.Precision.single: 1e-3}
 
-COUNTED = """\
+#: a firmware's step markers and console, for a hand-written main
+MARKERS = """\
 void pil_puts(const char *s);
 __attribute__((noinline)) void pil_begin(void) { __asm__ volatile("" ::: "memory"); }
 __attribute__((noinline)) void pil_end(void) { __asm__ volatile("" ::: "memory"); }
+"""
+COUNTED = MARKERS + """\
 int main(void)
 {
     pil_begin();

@@ -144,13 +144,11 @@ def normalize(mnemonic: str) -> str:
             return prefix
     if re.fullmatch(r"it[te]{0,3}", m):
         return "it"
-    for cut in (m, m[:-2] if m[-2:] in COND else None):
-        if cut is None:
-            continue
-        if cut in KNOWN:
+    bare = m[:-2] if m[-2:] in COND else None  # without a condition (bls: b + ls)
+    for cut in (m, bare, m[:-1] if m.endswith("s") else None,
+                bare[:-1] if bare and bare.endswith("s") else None):
+        if cut and cut in KNOWN and not (cut in BRANCH and cut != m and cut != bare):
             return cut
-        if cut.endswith("s") and cut[:-1] in KNOWN:
-            return cut[:-1]
     return m
 
 
@@ -244,23 +242,48 @@ def disassemble(elf: Path) -> dict[int, tuple[int, str, str]]:
 
 
 class Program:
-    """The instructions of one firmware, as arrays indexed by executed address."""
+    """The instructions of one firmware as arrays over their sorted addresses; an
+    instruction the table has no timing for is refused when a step executes it."""
 
     def __init__(self, table: dict[int, tuple[int, str, str]]) -> None:
-        self._table = table
-        self._insn: dict[int, Instruction] = {}
+        self.address = np.array(sorted(table), dtype=np.int64)
+        insns: list[Instruction | None] = []
+        self._unknown: dict[int, str] = {}
+        for a in self.address.tolist():
+            try:
+                insns.append(classify(a, *table[a]))
+            except ValueError as exc:
+                insns.append(None)
+                self._unknown[a] = str(exc)
+
+        def column(get, dtype):  # noqa: ANN001 (a field of every instruction)
+            return np.array([0 if i is None else get(i) for i in insns], dtype=dtype)
+
+        self.size = column(lambda i: i.size, np.int64)
+        self.base = column(lambda i: i.base, float)
+        self.div = column(lambda i: i.mnemonic in ("udiv", "sdiv"), bool)
+        self.branch = column(lambda i: i.branch, bool)
+        self.single = column(lambda i: i.single, bool)
+        self.pipelines_next = column(lambda i: i.single and not i.breaks_pipeline, bool)
+        self.loads = column(lambda i: i.data_bytes if not i.stack else 0, np.int64)
+        self.literal = column(lambda i: -1 if i.literal is None else i.literal, np.int64)
+        self.mnemonic = [None if i is None else i.mnemonic for i in insns]
 
     @classmethod
     def of(cls, elf: Path) -> Program:
         return cls(disassemble(elf))
 
-    def instruction(self, address: int) -> Instruction:
-        insn = self._insn.get(address)
-        if insn is None:
-            if address not in self._table:
-                raise ValueError(f"executed address {address:#x} is no instruction of the ELF")
-            insn = self._insn[address] = classify(address, *self._table[address])
-        return insn
+    def index(self, pcs: UIntArray) -> UIntArray:
+        """Positions of the executed addresses ``pcs`` in the arrays."""
+        idx = np.searchsorted(self.address, pcs)
+        bad = (idx >= self.address.size) | (self.address[np.minimum(idx, self.address.size - 1)]
+                                             != pcs)
+        if bad.any():
+            raise ValueError(f"executed address {int(pcs[bad][0]):#x} is no instruction of "
+                             "the ELF")
+        for a in set(pcs[np.isin(pcs, list(self._unknown))].tolist()) if self._unknown else ():
+            raise ValueError(self._unknown[a])
+        return idx
 
 
 @dataclass
@@ -298,44 +321,47 @@ def step_cycles(program: Program, pcs: UIntArray, next_pc: int, timing: Timing =
     """Modelled cycles of the executed addresses ``pcs`` (in order), ``next_pc`` the one
     executed after the last; ``machine`` carries the caches from step to step."""
     machine = machine or Machine.cold()
-    insns = [program.instruction(int(a)) for a in pcs]
-    following = [*(int(a) for a in pcs[1:]), int(next_pc)]
+    pcs = np.asarray(pcs, dtype=np.int64)
+    if not pcs.size:
+        return 0.0
+    p = program
+    idx = p.index(pcs)
+    nxt = np.append(pcs[1:], int(next_pc))
+    taken = nxt != pcs + p.size[idx]
+    odd = taken & ~p.branch[idx]
+    if odd.any():
+        k = int(np.flatnonzero(odd)[0])
+        raise ValueError(f"{p.mnemonic[idx[k]]} at {int(pcs[k]):#x} is followed by "
+                         f"{int(nxt[k]):#x}: not a branch (an exception in the step?)")
+    c = p.base[idx].copy()
+    c[p.div[idx]] = timing.div
+    if timing.pipelined:  # a load/store single right after one that lets it overlap
+        c[1:] -= p.single[idx[1:]] & p.pipelines_next[idx[:-1]] & ~taken[:-1]
+    c += timing.refill * taken
+    if timing.refill_by_target and timing.refill < 3:
+        targets = nxt[taken]
+        c[taken] += (p.size[p.index(targets)] == 4) & (targets % 4 == 2)
     ws = timing.wait_states
-    cycles = 0.0
-    prev_single = prev_taken = False
-    line = None
-    streamed = 0
-    for ins, nxt in zip(insns, following, strict=True):
-        c = float(ins.base if ins.mnemonic not in ("udiv", "sdiv") else timing.div)
-        if ins.single and prev_single and timing.pipelined:
-            c -= 1
-        prev_single = ins.single and not ins.breaks_pipeline
-        taken = nxt != ins.address + ins.size
-        if taken:
-            if not ins.branch:
-                raise ValueError(f"{ins.mnemonic} at {ins.address:#x} is followed by "
-                                 f"{nxt:#x}: not a branch (an exception in the step?)")
-            c += timing.refill
-            if timing.refill_by_target and timing.refill < 3:
-                target = program.instruction(nxt)
-                c += int(target.size == 4 and nxt % 4 == 2)
-            prev_single = False
-        here = ins.address // LINE
-        # a jump to a line other than the current and the prefetched one
-        if prev_taken and line is not None and FLASH[0] <= ins.address < FLASH[1]:
-            if timing.fetch is Fetch.miss or (timing.fetch is Fetch.art
-                                              and here not in (line, line + 1)
-                                              and not machine.icache.access(here)):
-                c += ws
-        line, prev_taken = here, taken
-        if ins.data_bytes and not ins.stack and timing.data is not Data.hit:
-            if timing.data is Data.miss:
-                c += ws
-            elif ins.literal is not None:
-                c += 0 if machine.dcache.access(ins.literal // LINE) else ws
-            else:
-                before = streamed // LINE
-                streamed += ins.data_bytes
-                c += ws * (streamed // LINE - before)
-        cycles += c
-    return cycles
+    line = pcs // LINE
+    arrived = np.zeros(pcs.size, dtype=bool)  # fetched after a taken branch, from flash
+    arrived[1:] = taken[:-1] & (pcs[1:] >= FLASH[0]) & (pcs[1:] < FLASH[1])
+    if timing.fetch is Fetch.miss:
+        c += ws * arrived
+    elif timing.fetch is Fetch.art:  # not the current or the prefetched line: the cache
+        far = np.flatnonzero(arrived[1:] & (line[1:] != line[:-1])
+                             & (line[1:] != line[:-1] + 1)) + 1
+        for k, ln in zip(far.tolist(), line[far].tolist(), strict=True):
+            if not machine.icache.access(ln):
+                c[k] += ws
+    loads = p.loads[idx]
+    if timing.data is Data.miss:
+        c += ws * (loads > 0)
+    elif timing.data is Data.stream:
+        literal = p.literal[idx]
+        for k in np.flatnonzero((loads > 0) & (literal >= 0)).tolist():
+            if not machine.dcache.access(int(literal[k]) // LINE):
+                c[k] += ws
+        streamed = np.where(literal < 0, loads, 0)
+        after = np.cumsum(streamed)
+        c += ws * (after // LINE - (after - streamed) // LINE)
+    return float(c.sum())

@@ -22,7 +22,6 @@ import subprocess
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +31,7 @@ import pandas as pd
 from mpclab import record
 from mpclab.codegen import cycles
 from mpclab.codegen.cwriter import c_array
-from mpclab.codegen.loader import ScheduledLibrary
+from mpclab.codegen.loader import Precision, ScheduledLibrary
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -52,11 +51,6 @@ F401RE_FLASH, F401RE_RAM, F401RE_CLOCK_HZ = 512 * 1024, 96 * 1024, 84e6
 CPI_RANGE = (1.0, 1.5, 2.0)
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "qemu-system-arm")
 QEMU_BOARD = "netduinoplus2"
-
-
-class Precision(StrEnum):
-    double = "double"
-    single = "single"
 
 
 @dataclass(frozen=True)
