@@ -36,6 +36,8 @@ FloatArray = npt.NDArray[np.float64]
 
 #: bump when the cycle model or the fit changes (old cached fits are then not used)
 MODEL_VERSION = "1"
+#: the active set's iteration cap (box_qp.c's MPC_QP_MAX_ITERATIONS)
+ITERATION_CAP = 200
 
 
 @dataclass(frozen=True)
