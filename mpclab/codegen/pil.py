@@ -10,9 +10,9 @@ netduinoplus2`` (an STM32F405, Cortex-M4F) and prints each step's result through
 
 Executed instructions are counted exactly: with ``-singlestep -d exec,nochain`` QEMU logs one
 line per executed instruction, named by its function; the lines between ``pil_begin`` and
-``pil_end`` are the step's (minus the two instructions of the markers' call and return).
-QEMU does not model the core's timing, so the time per step is ``instructions * CPI / 84 MHz``
-for an assumed cycles-per-instruction (see :data:`CPI_RANGE`).
+``pil_end`` are the step's. QEMU does not model the core's timing: the cycles of a step are
+the executed addresses weighed by the Cortex-M4 cycle model (:mod:`mpclab.codegen.cycles`;
+``timings``), and its time those cycles at the F401RE's 84 MHz.
 """
 
 from __future__ import annotations
@@ -42,13 +42,6 @@ CM4_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=har
 BUILD_FLAGS = ("-O2", "-std=c99", "-ffunction-sections", "-fdata-sections")
 #: the F401RE's memory [bytes] and clock [Hz]
 F401RE_FLASH, F401RE_RAM, F401RE_CLOCK_HZ = 512 * 1024, 96 * 1024, 84e6
-#: cycles per instruction assumed for the time estimate: (low, central, high). Cortex-M4 TRM
-#: (ARM DDI 0439B, instruction timings of the core, ch. 3, and the FPU, ch. 7): most
-#: data-processing and single-precision FPU instructions take 1 cycle, loads 2 (pipelined 1),
-#: branches 1 + a 1-3 cycle refill, VDIV/VSQRT 14; the F401RE runs its flash with 2 wait
-#: states at 84 MHz (ST RM0368), hidden for sequential code and small loops by the ART
-#: accelerator. An assumption, not a measurement.
-CPI_RANGE = (1.0, 1.5, 2.0)
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "qemu-system-arm")
 QEMU_BOARD = "netduinoplus2"
 
@@ -188,11 +181,6 @@ def step_windows(log: Path) -> list[tuple[npt.NDArray[np.int64], int]]:
                 i = line.index("/")
                 pcs.append(int(line[i + 1:i + 9], 16))
     return windows
-
-
-def step_time_s(instructions: float, cpi: float, clock_hz: float = F401RE_CLOCK_HZ) -> float:
-    """The time of ``instructions`` at ``cpi`` cycles each on a ``clock_hz`` core [s]."""
-    return instructions * cpi / clock_hz
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,8 @@ FloatArray = npt.NDArray[np.float64]
 
 #: bump when the cycle model or the fit changes (old cached fits are then not used)
 MODEL_VERSION = "1"
+#: the longest the calibration's emulated run may take [s]
+TIMEOUT_S = 3600.0
 #: the active set's iteration cap (box_qp.c's MPC_QP_MAX_ITERATIONS)
 ITERATION_CAP = 200
 
@@ -109,9 +111,14 @@ def step_model(library: ScheduledLibrary, x: FloatArray, ref: FloatArray,
         data["iterations_traced"] = tuple(data["iterations_traced"])
         return StepModel(**data)
     with tempfile.TemporaryDirectory(prefix="mpclab_m4_") as tmp:
-        elf, _ = pil.cross_build(pil.harness_source(library.source, x, ref), precision,
-                                 Path(tmp))
-        steps = pil.run(elf, count_instructions=True, timings={"central": cycles.CENTRAL})
+        try:
+            elf, _ = pil.cross_build(pil.harness_source(library.source, x, ref), precision,
+                                     Path(tmp))
+        except subprocess.CalledProcessError as exc:  # e.g. more than the F401RE's flash
+            raise RuntimeError(f"the {precision} cross build failed: "
+                               f"{(exc.stderr or '').strip()[-400:]}") from None
+        steps = pil.run(elf, count_instructions=True, timeout_s=TIMEOUT_S,
+                        timings={"central": cycles.CENTRAL})
     its = [s.iterations for s in steps]
     cyc = [s.cycles["central"] for s in steps]
     base, slope, spread = fit(its, cyc)
