@@ -88,6 +88,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     x = scen.x0.copy()  # the true state
     ctrl.reset(x)
     sup.reset(x, scen.goal)
+    board_time = world.board_time(ctrl)  # sim.latency=modelled: the controller's model
     log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world, dt)
     # the closest approach between samples, along the path the simulated plant drives
     guard = ContinuousClearance(world.plant, scen.obstacles, scen.robot_radius)
@@ -118,7 +119,8 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             c0, t0 = time.thread_time(), time.perf_counter()
             cs = ctrl.step(t, measured, ctx)
             solve_time = time.perf_counter() - t0
-            timing = world.timing(cs.u, cs.u_pred, solve_time)
+            timing = world.timing(cs.u, cs.u_pred, solve_time,
+                                  None if board_time is None else board_time(cs))
             ctrl.received(timing.applied)  # the input-rate term's previous input
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step
             cs.info[CPU_COLUMN] = time.thread_time() - c0  # unlike wall time, not inflated

@@ -75,6 +75,32 @@ def test_sil_whole_run_agrees_with_the_python_twin(run_cfg, control_horizon) -> 
     np.testing.assert_allclose(b[["delta", "a"]], a[["delta", "a"]], rtol=0, atol=TOL)
 
 
+#: single against double C in the closed loop: float rounds every table entry and operation
+#: (relative 6e-8) and the runs drift apart by as much; inputs of order 1 (rad, m/s^2)
+SINGLE_TOL = 1e-3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("control_horizon", [1, 4])
+def test_single_precision_c_drives_the_whole_run_as_the_double(run_cfg, control_horizon) -> None:
+    """The float build of the same C in the loop (controller.codegen_precision=single): the
+    same arrival and operating points, every step converged, the inputs within SINGLE_TOL of
+    the double build's at every step and the same tracking RMS (to 1e-4 relative)."""
+    base = ["+experiment=bicycle_scheduled", "scenario=regular_circle_turn",
+            "controller.codegen=true", f"controller.control_horizon={control_horizon}"]
+    _, d_dir = run_cfg(base, name="double")
+    _, s_dir = run_cfg([*base, "controller.codegen_precision=single"], name="single")
+    d, s = (json.loads((p / "summary.json").read_text()) for p in (d_dir, s_dir))
+    assert (d["codegen_precision"], s["codegen_precision"]) == ("double", "single")
+    assert s["status"] == d["status"] == "arrived"
+    assert s["arrival_time_s"] == d["arrival_time_s"] and s["converged_fraction"] == 1.0
+    assert s["rms_position"] == pytest.approx(d["rms_position"], rel=1e-4)
+    a, b = (record.controller_steps(pd.read_parquet(p / "steps.parquet")) for p in (d_dir, s_dir))
+    assert len(a) == len(b) and (a["op"] == b["op"]).all()
+    du = np.abs(b[["delta", "a"]].to_numpy() - a[["delta", "a"]].to_numpy())
+    assert 0 < du.max() <= SINGLE_TOL  # float, not double, and close to it
+
+
 def test_codegen_refuses_what_it_cannot_generate() -> None:
     with pytest.raises(ConfigError, match="mode=switched"):
         controller(mode="interpolated", codegen=True)

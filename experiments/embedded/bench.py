@@ -1,5 +1,5 @@
 """Study C embedded benchmark: the scheduled MPC in Python, as generated C on this machine, and
-on an emulated Cortex-M4F (instruction count -> time at 84 MHz), side by side in one run.
+on an emulated Cortex-M4F (modelled cycles -> time at 84 MHz), side by side in one run.
 
     uv run python experiments/embedded/bench.py               # all configurations
     uv run python experiments/embedded/bench.py --quick       # horizon 32, control horizon 1
@@ -11,8 +11,9 @@ controller; its controller calls are the recorded states. Then, interleaved stat
 through ctypes, inside the same Python step: ControlStep, prediction, cost); the generated C
 alone in a C loop (``clock_gettime``, the controller's step without the prediction); and the
 PIL check in double and single precision (footprint, agreement with the desktop C,
-instructions per step). Writes ``results.md`` (the table with its stamp: command, commit,
-CPU, date) and ``results.csv`` beside this file.
+instructions and modelled cycles per step: mpclab/codegen/cycles.py, low/central/high).
+Writes ``results.md`` (the table with its stamp: command, commit, CPU, date) and
+``results.csv`` beside this file.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpclab.codegen import pil
+from mpclab.codegen import cycles, pil
 from mpclab.codegen.build import find_compiler
 from mpclab.codegen.loader import DEFAULT_FLAGS
 from mpclab.controllers.base import StepContext
@@ -121,7 +122,8 @@ def bench(H: int, M: int, n_pil: int, rounds: int, repeat: int) -> dict:
     xp, rp = pil.recorded_states(steps, run.plant.states, target, n_pil)
     with tempfile.TemporaryDirectory() as tmp:
         for prec in pil.Precision:
-            chk = pil.pil_check(c._sil.library, xp, rp, prec, Path(tmp))
+            chk = pil.pil_check(c._sil.library, xp, rp, prec, Path(tmp),
+                                timings=cycles.BOUNDS)
             ins = np.array(chk.instructions)
             row |= {
                 f"{prec}_flash_B": chk.footprint.flash, f"{prec}_ram_B": chk.footprint.ram,
@@ -129,20 +131,21 @@ def bench(H: int, M: int, n_pil: int, rounds: int, repeat: int) -> dict:
                 f"{prec}_max_du": chk.max_input_difference,
                 f"{prec}_converged": all(s.code == 0 for s in chk.steps),
                 f"{prec}_insn_median": float(np.median(ins)), f"{prec}_insn_max": int(ins.max()),
-                **{f"{prec}_ms_cpi{cpi}": pil.step_time_s(ins.max(), cpi) * 1e3
-                   for cpi in pil.CPI_RANGE},
+                **{f"{prec}_ms_{b}": max(s.cycles[b] for s in chk.steps)
+                   / pil.F401RE_CLOCK_HZ * 1e3 for b in cycles.BOUNDS},
             }
     return row
 
 
 def table(df: pd.DataFrame) -> str:
     lines = ["| H | M | Python step | codegen step (ctypes) | C loop | M4 single: insn (max) | "
-             "M4 single ms @CPI 1/1.5/2 | M4 double: insn (max) | M4 double ms @CPI 1/1.5/2 | "
+             "M4 single ms low/central/high | M4 double: insn (max) | M4 double ms "
+             "low/central/high | "
              "flash / RAM single | flash / RAM double | study (F401RE) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in df.iterrows():
-        s = "/".join(f"{r[f'single_ms_cpi{c}']:.3f}" for c in pil.CPI_RANGE)
-        d = "/".join(f"{r[f'double_ms_cpi{c}']:.3f}" for c in pil.CPI_RANGE)
+        s = "/".join(f"{r[f'single_ms_{b}']:.3f}" for b in cycles.BOUNDS)
+        d = "/".join(f"{r[f'double_ms_{b}']:.3f}" for b in cycles.BOUNDS)
         study = f"{STUDY_MS[r.H]} ms" if r.M == 1 else "-"
         lines.append(
             f"| {r.H} | {r.M} | {r.python_step_us:.1f} µs | {r.codegen_step_us:.1f} µs | "

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 from collections.abc import Sequence
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -25,23 +26,34 @@ FloatArray = npt.NDArray[np.float64]
 DEFAULT_FLAGS = ("-O2", "-std=c99")
 
 
-class ScheduledLibrary:
-    """The generated controller of ``tables``, compiled (double precision) and loaded."""
+class Precision(StrEnum):
+    """``mpc_real``: ``double``, or ``single`` (``float``, compiled with ``-DMPC_SINGLE``)."""
 
-    def __init__(self, tables: ScheduledTables, flags: Sequence[str] = DEFAULT_FLAGS) -> None:
+    double = "double"
+    single = "single"
+
+
+class ScheduledLibrary:
+    """The generated controller of ``tables``, compiled in ``precision`` and loaded."""
+
+    def __init__(self, tables: ScheduledTables, flags: Sequence[str] = DEFAULT_FLAGS,
+                 precision: Precision = Precision.double) -> None:
         self.tables = tables
+        self.precision = Precision(precision)
         self.source = scheduled_c(tables)
-        self.flags = (*flags, "-DMPC_PREDICTION")
+        single = ("-DMPC_SINGLE",) if self.precision is Precision.single else ()
+        self.flags = (*flags, *single, "-DMPC_PREDICTION")
         self.path: Path = compile_shared(self.source, "scheduled", self.flags,
                                          header=scheduled_h(tables), keep_source=True)
         #: the generated C kept beside the library (the source, whole, and its header)
         self.generated: list[Path] = kept_source(self.path)
         lib = ctypes.CDLL(str(self.path))
         nx, nz, T = tables.nx, tables.nz, tables.horizon
-        self._x = np.zeros(nx)
-        self._ref = np.zeros((T + 1) * nx)
-        self._z = np.zeros(nz)
-        self._X = np.zeros((T + 1) * nx)
+        real = np.float32 if self.precision is Precision.single else np.float64
+        self._x = np.zeros(nx, dtype=real)
+        self._ref = np.zeros((T + 1) * nx, dtype=real)
+        self._z = np.zeros(nz, dtype=real)
+        self._X = np.zeros((T + 1) * nx, dtype=real)
         self._op, self._iters = ctypes.c_int(0), ctypes.c_int(0)
         self._step = lib.mpc_step
         self._step.restype = ctypes.c_int
@@ -60,11 +72,11 @@ class ScheduledLibrary:
         self._x[:] = x
         self._ref[:] = ref
         rc = self._step(self._px, self._pref, self._pz, self._pop, self._piters)
-        return rc, self._z.copy(), self._op.value, self._iters.value
+        return rc, self._z.astype(float), self._op.value, self._iters.value
 
     def predict(self, op: int, x: FloatArray, z: FloatArray) -> FloatArray:
         """The predicted states ``((T+1) nx,)`` of ``mpc_predict`` (a fresh array)."""
         self._x[:] = x
         self._z[:] = z
         self._predict(op, self._px, self._pz, self._pX)
-        return self._X.copy()
+        return self._X.astype(float)

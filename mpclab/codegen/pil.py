@@ -10,9 +10,9 @@ netduinoplus2`` (an STM32F405, Cortex-M4F) and prints each step's result through
 
 Executed instructions are counted exactly: with ``-singlestep -d exec,nochain`` QEMU logs one
 line per executed instruction, named by its function; the lines between ``pil_begin`` and
-``pil_end`` are the step's (minus the two instructions of the markers' call and return).
-QEMU does not model the core's timing, so the time per step is ``instructions * CPI / 84 MHz``
-for an assumed cycles-per-instruction (see :data:`CPI_RANGE`).
+``pil_end`` are the step's. QEMU does not model the core's timing: the cycles of a step are
+the executed addresses weighed by the Cortex-M4 cycle model (:mod:`mpclab.codegen.cycles`;
+``timings``), and its time those cycles at the F401RE's 84 MHz.
 """
 
 from __future__ import annotations
@@ -20,9 +20,8 @@ from __future__ import annotations
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from enum import StrEnum
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +29,9 @@ import numpy.typing as npt
 import pandas as pd
 
 from mpclab import record
+from mpclab.codegen import cycles
 from mpclab.codegen.cwriter import c_array
-from mpclab.codegen.loader import ScheduledLibrary
+from mpclab.codegen.loader import Precision, ScheduledLibrary
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -42,22 +42,8 @@ CM4_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=har
 BUILD_FLAGS = ("-O2", "-std=c99", "-ffunction-sections", "-fdata-sections")
 #: the F401RE's memory [bytes] and clock [Hz]
 F401RE_FLASH, F401RE_RAM, F401RE_CLOCK_HZ = 512 * 1024, 96 * 1024, 84e6
-#: cycles per instruction assumed for the time estimate: (low, central, high). Cortex-M4 TRM
-#: (ARM DDI 0439B, instruction timings of the core, ch. 3, and the FPU, ch. 7): most
-#: data-processing and single-precision FPU instructions take 1 cycle, loads 2 (pipelined 1),
-#: branches 1 + a 1-3 cycle refill, VDIV/VSQRT 14; the F401RE runs its flash with 2 wait
-#: states at 84 MHz (ST RM0368), hidden for sequential code and small loops by the ART
-#: accelerator. An assumption, not a measurement.
-CPI_RANGE = (1.0, 1.5, 2.0)
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "qemu-system-arm")
 QEMU_BOARD = "netduinoplus2"
-#: instructions between the markers that are not the step's: pil_begin's return, pil_end's call
-MARKER_INSTRUCTIONS = 2
-
-
-class Precision(StrEnum):
-    double = "double"
-    single = "single"
 
 
 @dataclass(frozen=True)
@@ -87,6 +73,8 @@ class PilStep:
     iterations: int
     z: FloatArray
     instructions: int | None
+    #: modelled cycles by timing name (:mod:`mpclab.codegen.cycles`; empty: not asked)
+    cycles: dict[str, float] = field(default_factory=dict)
 
 
 def missing_tools() -> list[str]:
@@ -136,23 +124,35 @@ def _stack(su: Path) -> int:
     return total
 
 
-def run(elf: Path, count_instructions: bool, timeout_s: float = 120.0) -> list[PilStep]:
-    """Run the firmware under QEMU; per step its printed result and (if asked) instructions."""
+def run(elf: Path, count_instructions: bool, timeout_s: float = 120.0,
+        timings: Mapping[str, cycles.Timing] | None = None) -> list[PilStep]:
+    """Run the firmware under QEMU; per step its printed result and (if asked) instructions
+    and the modelled cycles under each of ``timings`` (:mod:`mpclab.codegen.cycles`; the
+    caches warm from step to step)."""
     with tempfile.TemporaryDirectory(prefix="mpclab_pil_") as tmp:
         log, console = Path(tmp) / "exec.log", Path(tmp) / "console.txt"
         cmd = ["qemu-system-arm", "-M", QEMU_BOARD, "-display", "none", "-monitor", "none",
                "-serial", "null", "-chardev", f"file,id=semihosting,path={console}",
                "-semihosting-config", "enable=on,target=native,chardev=semihosting",
                "-kernel", str(elf)]
-        if count_instructions:
+        if count_instructions or timings:
             cmd += ["-singlestep", "-d", "exec,nochain", "-D", str(log)]
         subprocess.run(cmd, check=True, capture_output=True, stdin=subprocess.DEVNULL,
                        timeout=timeout_s)
         out = console.read_text()
-        counts = _count(log) if count_instructions else None
+        windows = step_windows(log) if count_instructions or timings else None
     lines = out.splitlines()
     if not lines or lines[-1].strip() != "done":
         raise RuntimeError(f"the PIL firmware did not finish: {out[-300:]!r}")
+    modelled: list[dict[str, float]] = [{} for _ in lines[:-1]]
+    if timings and windows is not None:
+        program = cycles.Program.of(elf)
+        for name, timing in timings.items():
+            machine = cycles.Machine.cold()
+            if windows:  # warm: as the previous step of a control loop left the caches
+                cycles.step_cycles(program, *windows[0], timing, machine)
+            for i, (pcs, nxt) in enumerate(windows):
+                modelled[i][name] = cycles.step_cycles(program, pcs, nxt, timing, machine)
     steps = []
     for i, line in enumerate(lines[:-1]):
         op, code, iters, *z = line.split()
@@ -160,26 +160,27 @@ def run(elf: Path, count_instructions: bool, timeout_s: float = 120.0) -> list[P
         zs = np.array([int(v, 16) for v in z], dtype=np.uint64 if dtype is np.float64
                       else np.uint32).view(dtype).astype(float)
         steps.append(PilStep(int(op, 16), int(code, 16), int(iters, 16), zs,
-                             None if counts is None else counts[i]))
+                             None if windows is None else len(windows[i][0]) - 1,
+                             modelled[i]))
     return steps
 
 
-def _count(log: Path) -> list[int]:
-    """Instructions between each ``pil_begin`` and the next ``pil_end`` in an exec log."""
-    counts, start = [], None
+def step_windows(log: Path) -> list[tuple[npt.NDArray[np.int64], int]]:
+    """Per step of an exec log, the executed addresses from ``pil_begin``'s return up to the
+    call of ``pil_end`` and the address after the last (that call). Its instruction count
+    is one less (an instruction of the marker's call the compiler places in the window)."""
+    windows, pcs = [], None
     with log.open() as f:
-        for n, line in enumerate(f):
+        for line in f:
             if line.endswith("] pil_begin\n"):
-                start = n
-            elif line.endswith("] pil_end\n") and start is not None:
-                counts.append(n - start - 1 - MARKER_INSTRUCTIONS)
-                start = None
-    return counts
-
-
-def step_time_s(instructions: float, cpi: float, clock_hz: float = F401RE_CLOCK_HZ) -> float:
-    """The time of ``instructions`` at ``cpi`` cycles each on a ``clock_hz`` core [s]."""
-    return instructions * cpi / clock_hz
+                pcs = []
+            elif line.endswith("] pil_end\n") and pcs is not None:
+                windows.append((np.array(pcs[:-1], dtype=np.int64), pcs[-1]))
+                pcs = None
+            elif pcs is not None:
+                i = line.index("/")
+                pcs.append(int(line[i + 1:i + 9], 16))
+    return windows
 
 
 @dataclass(frozen=True)
@@ -216,7 +217,8 @@ class PilCheck:
 
 
 def pil_check(library: ScheduledLibrary, x: FloatArray, ref: FloatArray, precision: Precision,
-              folder: Path, count_instructions: bool = True) -> PilCheck:
+              folder: Path, count_instructions: bool = True,
+              timings: Mapping[str, cycles.Timing] | None = None) -> PilCheck:
     """Cross-build ``library``'s C with the recorded states ``x (n, nx)``, ``ref (n, nref)``,
     run it under QEMU and set its results beside the desktop library's."""
     desktop = [library.step(xi, ri)[1:3][::-1] for xi, ri in zip(x, ref, strict=True)]
@@ -224,7 +226,7 @@ def pil_check(library: ScheduledLibrary, x: FloatArray, ref: FloatArray, precisi
                                folder / f"{precision}_footprint")
     elf, _ = cross_build(harness_source(library.source, x, ref), precision,
                          folder / f"{precision}_run")
-    return PilCheck(precision, footprint, run(elf, count_instructions), desktop)
+    return PilCheck(precision, footprint, run(elf, count_instructions, timings=timings), desktop)
 
 
 def recorded_states(steps: pd.DataFrame, state_labels: Sequence[str],

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -188,6 +188,11 @@ class Controller(ABC):
     def metrics(self, steps: Any) -> dict[str, Any]:
         """Backend-specific figures for ``summary.json`` computed from the step log."""
         return {}
+
+    def board_time_model(self) -> Callable[[ControlStep], float] | None:
+        """The time a call takes on the board the backend models, as a function of its
+        result [s] (``sim.latency=modelled``); None: the backend models none."""
+        return None
 
     @abstractmethod
     def _solve(self, t: float, x: FloatArray, ctx: StepContext) -> ControlStep:

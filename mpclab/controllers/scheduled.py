@@ -25,7 +25,7 @@ The heading is periodic: a model linearized at ``theta_i`` is used at ``theta_i 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from types import MappingProxyType
@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from mpclab import record
-from mpclab.codegen.loader import ScheduledLibrary
+from mpclab.codegen.loader import Precision, ScheduledLibrary
 from mpclab.controllers.base import (
     Controller,
     ControlStep,
@@ -52,7 +52,7 @@ from mpclab.controllers.qp_dense import (
     box_qp_active_set,
     condenser,
 )
-from mpclab.controllers.scheduled_c import ScheduledSIL
+from mpclab.controllers.scheduled_c import M4_COLUMN, ScheduledSIL
 from mpclab.controllers.scheduled_grid import TWO_PI, OperatingGrid
 from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
@@ -119,6 +119,10 @@ class ScheduledMPC(Controller):
         Step through the generated C of this controller (compiled with the machine's C
         compiler, cached; :mod:`mpclab.controllers.scheduled_c`) instead of Python: switched
         mode without hysteresis, solver ``auto``, ``closed_form`` or ``active_set``.
+    codegen_precision
+        ``double`` or ``single`` (``float``, as the Cortex-M4F's FPU computes): the generated
+        C's arithmetic in the loop, and the build whose time per step on the F401RE
+        ``sim.latency=modelled`` (``sim=embedded_m4``) applies (:meth:`board_time_model`).
     delay_compensation
         Solve from the state predicted over the loop's expected latency with the input in
         effect, the reference shifted by the same time (``Controller.step``).
@@ -141,6 +145,7 @@ class ScheduledMPC(Controller):
         solver_options: Mapping[str, Any] | None = None,
         solve_via: SolveVia | str = SolveVia.auto,
         codegen: bool = False,
+        codegen_precision: Precision | str = Precision.double,
         delay_compensation: bool = False,
     ) -> None:
         super().__init__(plant, horizon, dt, delay_compensation)
@@ -187,7 +192,11 @@ class ScheduledMPC(Controller):
         )
         self._active: int | None = None
         self.codegen = bool(codegen)
+        self.codegen_precision = parse_choice(Precision, codegen_precision,
+                                              "controller.codegen_precision")
         self._sil = ScheduledSIL.of(self) if self.codegen else None
+        if self._sil is not None:  # the modelled board time, when the loop asks for it
+            self.log_columns = (*type(self).log_columns, M4_COLUMN)
 
     @property
     def c_library(self) -> ScheduledLibrary | None:
@@ -347,6 +356,12 @@ class ScheduledMPC(Controller):
         res.info["op"] = op
         return res
 
+    def board_time_model(self) -> Callable[[ControlStep], float] | None:
+        """With ``codegen=true``: a call's time on the F401RE (Cortex-M4F, 84 MHz) by the
+        step model of the generated C in ``codegen_precision``
+        (:meth:`ScheduledSIL.board_time`)."""
+        return None if self._sil is None else self._sil.board_time()
+
     # ------------------------------------------------------------------ results
     def operating_table(self) -> pd.DataFrame:
         """One row per operating point: ``op`` and the scheduling states' values."""
@@ -374,6 +389,8 @@ class ScheduledMPC(Controller):
         }
         if self._sil is not None:  # where its C is (printed at the end of the run)
             out["generated_c"] = [str(p) for p in self._sil.library.generated]
+            out["codegen_precision"] = self.codegen_precision.value
+            out |= self._sil.board_summary(calls)
         if len(ops) < 2:
             return out | {"n_switches": 0}
         switch = np.flatnonzero(ops[1:] != ops[:-1]) + 1

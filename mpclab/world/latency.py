@@ -22,6 +22,7 @@ class Latency(StrEnum):
     fixed = "fixed"  # given as a number of ms
     one_sample = "one_sample"  # computed from the predicted next state, acts one period late
     recorded = "recorded"  # drawn, seeded, from latency_profile
+    modelled = "modelled"  # the controller's model of its time on a board, per call
 
 
 class DeadlinePolicy(StrEnum):
@@ -33,8 +34,8 @@ class DeadlinePolicy(StrEnum):
 def parse_latency(value: Any) -> tuple[Latency, float]:
     """``sim.latency`` as its kind and, for a number of ms, the fixed latency [s]."""
     if isinstance(value, bool):
-        raise ConfigError(f"sim.latency must be none, measured, one_sample, recorded or a "
-                          f"number of ms, got {value}")
+        raise ConfigError(f"sim.latency must be none, measured, one_sample, recorded, "
+                          f"modelled or a number of ms, got {value}")
     if isinstance(value, int | float):
         return Latency.fixed, number(value, "sim.latency", at_least=0) / 1e3
     text = str(value)

@@ -12,7 +12,10 @@ instant the state was measured, and the simulator integrates the controller's ow
   ``t_k+1`` and its input acts from ``t_k+1``, however long the solve took. ``recorded``
   draws each latency, seeded, from a recorded distribution (``latency_profile``: a CSV or
   Parquet file with a ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run
-  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run.
+  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run;
+  ``modelled`` is each call's time on the board the controller models
+  (``Controller.board_time_model``: the scheduled controller's generated C on the F401RE,
+  ``sim=embedded_m4``).
   A solve whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control
   period) is a deadline miss, and ``deadline_policy`` says what happens: ``hold`` (its input
   never acts; the applied one holds), ``plan`` (its input never acts; the next input of the
@@ -96,7 +99,7 @@ ActuatorConf = _nested(Actuator, "ActuatorConf")
 class SimConf:
     _target_: str = "mpclab.world.realism.SimWorld"
     name: str = "nominal"
-    latency: Any = "none"          # none | measured | a number of ms | one_sample | recorded
+    latency: Any = "none"   # none | measured | a number of ms | one_sample | recorded | modelled
     latency_scale: float = 1.0     # factor on the latency (a slower target)
     latency_profile: str | None = None  # recorded: a .csv or .parquet with a latency_s column
     deadline_ms: float | None = None  # default: the control period
@@ -229,7 +232,7 @@ class SimWorld:
 
     def reset(self, nu: int) -> None:
         self._plan, self._plan_age = None, 0
-        if self.latency is Latency.measured:
+        if self.latency in (Latency.measured, Latency.modelled):
             self._expected_s = 0.0
         self.applied = np.zeros(nu)
         self.actuator.reset(nu)
@@ -267,20 +270,38 @@ class SimWorld:
         the first)."""
         return self._expected_s
 
-    def timing(self, u: FloatArray, u_pred: FloatArray, solve_time_s: float) -> Timing:
+    def board_time(self, controller: Any) -> Any:
+        """``controller``'s model of a call's time on its board (``sim.latency=modelled``),
+        else None; a controller that models none is refused, naming the key."""
+        if self.latency is not Latency.modelled:
+            return None
+        model = controller.board_time_model()
+        if model is None:
+            name = controller.registered_name or type(controller).__name__
+            raise ConfigError(
+                f"sim.latency=modelled: the {name} controller models no time on a board; "
+                "valid: controller=scheduled with "
+                "controller.codegen=true, or another sim.latency (none, measured, a number "
+                "of ms, one_sample, recorded)")
+        return model
+
+    def timing(self, u: FloatArray, u_pred: FloatArray, solve_time_s: float,
+               modelled_s: float | None = None) -> Timing:
         """When the input ``u`` (first of the plan ``u_pred``) acts, given the solve took
-        ``solve_time_s``."""
+        ``solve_time_s`` (and, under ``modelled``, ``modelled_s`` on the board)."""
         if self.latency is Latency.none:
             tau = 0.0
         elif self.latency is Latency.measured:
             tau = solve_time_s * self.latency_scale
+        elif self.latency is Latency.modelled:  # simulate passes the controller's model's
+            tau = float(modelled_s) * self.latency_scale
         elif self.latency is Latency.one_sample:
             tau = self.dt
         elif self.profile_s is not None:
             tau = float(self._latency_rng.choice(self.profile_s)) * self.latency_scale
         else:
             tau = self.fixed_latency_s * self.latency_scale
-        if self.latency is Latency.measured:
+        if self.latency in (Latency.measured, Latency.modelled):
             self._expected_s = tau
         if tau <= self.deadline_s or self.latency is Latency.one_sample:
             self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
