@@ -1,10 +1,11 @@
 """The control horizon (move blocking) on every backend that solves an OCP.
 
 One blocking definition (:mod:`mpclab.controllers.blocking`) for CVXPY, CasADi (IPOPT,
-fatrop, SQP, SQP-RTI, single shooting, generated C) and the scheduled backend. Checked here:
-``control_horizon = horizon`` gives each backend's unblocked plan; the CVXPY and CasADi car
-plans agree at ``Nc = 3`` and with a list of blocks; the plan holds its input within each
-block; the decision vector holds ``Nc * nu`` free inputs; the summary records the blocking.
+fatrop, SQP, the real-time iteration, capped SQP, single shooting, generated C) and the
+scheduled backend. Checked here: ``control_horizon = horizon`` gives each backend's
+unblocked plan; the CVXPY and CasADi car plans agree at ``Nc = 3`` and with a list of
+blocks; the plan holds its input within each block; the decision vector holds ``Nc * nu``
+free inputs; the summary records the blocking.
 
 Stated tolerances: plans of one backend blocked as ``horizon`` and unblocked are the same
 problem, 1e-9 on the inputs; CVXPY's successive linearization and CasADi's NLP solvers to
@@ -44,6 +45,7 @@ CAR_BACKENDS = {
     "fatrop": ("car_casadi", ["controller=casadi_fatrop", "controller.jit=false"]),
     "sqp": ("car_casadi", ["controller.jit=false"]),
     "sqp_rti": ("car_casadi", ["controller=casadi_rti"]),
+    "sqp_capped": ("car_casadi", ["controller=casadi_sqp_capped"]),
 }
 
 
