@@ -232,8 +232,8 @@ class CasadiMPC(Controller):
                 "sqp_rti": "it solves one QP per sample",
             }[self.solver.value])
             raise ConfigError(
-                f"controller.time_cap_ms={time_cap_ms} needs controller.solver "
-                f"{', '.join(TIME_CAPPED)} without controller.codegen (got "
+                f"controller.time_cap_ms={time_cap_ms} needs controller.solver one of "
+                f"{', '.join(TIME_CAPPED)}, without controller.codegen (got "
                 f"solver={self.solver.value}{', codegen=true' if self.codegen else ''}: {why})")
         self.log_columns = RtiLoop.columns if self.rti else ()
         self.sqp_iterations = int(sqp_iterations)
