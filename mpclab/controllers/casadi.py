@@ -68,7 +68,7 @@ from mpclab.controllers.casadi_solvers import (
     nlpsol_options,
     read_status,
 )
-from mpclab.controllers.casadi_time_cap import TIME_CAP, Deadline
+from mpclab.controllers.casadi_time_cap import Deadline
 from mpclab.controllers.constrained import SlackLog
 from mpclab.errors import ConfigError, number, parse_choice
 from mpclab.objectives.base import Objective
@@ -361,8 +361,8 @@ class CasadiMPC(Controller):
         self.call_solver()
         status, raw, iters = (nlp.generated.status(io) if nlp.generated
                               else read_status(nlp.buffer))
-        if nlp.deadline is not None and nlp.deadline.fired and raw == "User_Requested_Stop":
-            status, raw = SolveStatus.truncated, f"{raw}:{TIME_CAP}"
+        if nlp.deadline is not None and raw == "User_Requested_Stop":
+            status, raw = nlp.deadline.status(raw)
         return self._finish(x, io["x"].copy(), io["lam_x"], io["lam_g"], status, raw, iters,
                             float(io["f"][0]), io["p"])
 
