@@ -162,6 +162,8 @@ def capped(name: str, label: str, overrides: list[str], cap_ms: float) -> dict[s
         "overrun_p95_ms": float(np.percentile(over, 95)) if len(over) else None,
         "overrun_max_ms": float(over.max()) if len(over) else None,
         "first_call_ms": float(ms[0]),
+        # CPU over wall time of the calls: below 1 when the process waited for a core
+        "cpu_share": float(steps["solve_cpu_s"].astype(float).sum() / (ms.sum() / 1e3)),
     }
 
 
