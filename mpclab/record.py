@@ -27,7 +27,7 @@ HORIZONS = "horizons.parquet"
 SUMMARY = "summary.json"
 
 #: columns of steps.parquet whose values depend on wall-clock timing
-TIMING_COLUMNS = ("solve_time_s", "solve_cpu_s", "prep_s", "feedback_s")
+TIMING_COLUMNS = ("solve_time_s", "solve_cpu_s", "prep_s", "feedback_s", "feedback_cpu_s")
 #: the ``status`` of steps.parquet's last row: the final state, after the last controller call
 FINAL = "final"
 

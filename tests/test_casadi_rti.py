@@ -116,7 +116,7 @@ def test_rti_closed_loop_records_its_phases(run_cfg) -> None:
     s, steps = res.summary, res.steps
     calls = steps[steps["status"] != "final"]
     assert s["arrived"] and s["solver"] == "sqp_rti"
-    for col in ("prep_s", "feedback_s", "late_prep"):
+    for col in ("prep_s", "feedback_s", "feedback_cpu_s", "late_prep"):
         assert col in steps
     assert np.all(calls["prep_s"].to_numpy(dtype=float) > 0)
     assert np.all(calls["feedback_s"].to_numpy(dtype=float) > 0)

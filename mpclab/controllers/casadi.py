@@ -29,7 +29,6 @@ step (:mod:`mpclab.controllers.casadi_guess`).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -392,9 +391,6 @@ class CasadiMPC(Controller):
         """The real-time iteration's step (:class:`RtiLoop`): the next sample's QP is
         linearized at this plan shifted by one step, from the state it predicts, with this
         sample's detections and its reference shifted."""
-        t0 = time.perf_counter()
-        p = self._params(x, ctx, nlp)
-
         def finish(sol: RtiResult) -> ControlStep:
             nlp.io["p"][:] = sol.p
             return self._finish(x, sol.w, sol.lam_x, sol.lam_g, sol.status, sol.raw, 1,
@@ -410,8 +406,9 @@ class CasadiMPC(Controller):
 
         assert nlp.rti is not None
         return self._rti_loop.step(
-            nlp.rti, t0, p, lambda: (self._initial_guess(x, ctx)[0], p, self._lam_g,
-                                     self._lam_x), self.starts.checked, finish, next_point)
+            nlp.rti, lambda: self._params(x, ctx, nlp),
+            lambda p: (self._initial_guess(x, ctx)[0], p, self._lam_g, self._lam_x),
+            self.starts.checked, finish, next_point)
 
     def call_solver(self) -> None:
         """One call of the current NLP's solver on its arrays (in place, no conversions); wrap

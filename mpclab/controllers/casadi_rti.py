@@ -239,11 +239,12 @@ class RtiLoop:
 
     The step log gets :attr:`columns`: ``feedback_s`` (from the call to the input: the
     parameters packed, the state embedded, the QP solved, its iterate checked against its
-    bounds; the latency), ``prep_s`` (after the input: the convergence check, the plan and
-    its cost, the next sample's preparation) and ``late_prep``.
+    bounds; the latency; ``feedback_cpu_s`` its CPU time, which waits for a core do not
+    inflate), ``prep_s`` (after the input: the convergence check, the plan and its cost, the
+    next sample's preparation) and ``late_prep``.
     """
 
-    columns = ("prep_s", FEEDBACK_KEY, "late_prep")
+    columns = ("prep_s", FEEDBACK_KEY, "feedback_cpu_s", "late_prep")
 
     def __init__(self) -> None:
         self.prepared: Prepared | None = None
@@ -251,22 +252,23 @@ class RtiLoop:
     def reset(self) -> None:
         self.prepared = None
 
-    def step(self, rti: RealTimeIteration, t0: float, p: FloatArray,
-             start: Callable[[], Point], check: Check,
+    def step(self, rti: RealTimeIteration, params: Callable[[], FloatArray],
+             start: Callable[[FloatArray], Point], check: Check,
              finish: Callable[[RtiResult], ControlStep],
              next_point: Callable[[ControlStep], Point]) -> ControlStep:
-        """One sample from ``t0`` (the call's start, ``perf_counter``) with the parameters
-        ``p``: ``start()`` is a late preparation's point, ``check(w, status, raw)`` decides
-        whether the feedback's iterate is applied (its bounds), ``finish`` makes the step of
-        it (the plan, the multipliers kept), ``next_point(step)`` the next preparation's
-        point."""
+        """One sample: ``params()`` are the measured sample's parameters, ``start(p)`` a
+        late preparation's point, ``check(w, status, raw)`` decides whether the feedback's
+        iterate is applied (its bounds), ``finish`` makes the step of it (the plan, the
+        multipliers kept), ``next_point(step)`` the next preparation's point."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        p = params()
         prep = self.prepared
         late = prep is None or prep.owner is not rti
         if late:
-            prep = rti.prepare(*start())
+            prep = rti.prepare(*start(p))
         sol = rti.feedback(prep, p)
         sol.w, sol.status, sol.raw = check(sol.w, sol.status, sol.raw)
-        t1 = time.perf_counter()  # the input is known: what follows is between samples
+        t1, c1 = time.perf_counter(), time.thread_time()  # the input is known
         if sol.status in USABLE:
             rti.refine(prep, sol)
         res = finish(sol)
@@ -275,7 +277,7 @@ class RtiLoop:
             res.cost = rti.cost(sol.w, sol.p)
             self.prepared = rti.prepare(*next_point(res))
         res.info |= {"prep_s": time.perf_counter() - t1, FEEDBACK_KEY: t1 - t0,
-                     "late_prep": late}
+                     "feedback_cpu_s": c1 - c0, "late_prep": late}
         return res
 
     @staticmethod
