@@ -143,3 +143,5 @@ def test_the_capped_sqp_keeps_its_iterations_and_the_rti_refuses_them() -> None:
     assert res.ok and res.iterations == 3 and "prep_s" not in res.info
     with pytest.raises(ConfigError, match=r"controller\.sqp_iterations=3 .*casadi_sqp_capped"):
         _zumo(sqp_iterations=3)
+    with pytest.raises(ConfigError, match=r"controller\.jit=true .*sqp_rti"):
+        _zumo(jit=True)

@@ -59,17 +59,17 @@ from mpclab.controllers.casadi_guess import StartingPoints, StepParameters
 from mpclab.controllers.casadi_ocp import OCP, Shooting, build_ocp
 from mpclab.controllers.casadi_rti import RealTimeIteration, RtiLoop, RtiResult
 from mpclab.controllers.casadi_solvers import (
-    TIME_CAPPED,
     CasadiQpSolver,
     CasadiSolver,
     bind_buffers,
+    checked_choices,
     dotted,
     nlpsol_options,
     read_status,
 )
 from mpclab.controllers.casadi_time_cap import Deadline
 from mpclab.controllers.constrained import SlackLog
-from mpclab.errors import ConfigError, number, parse_choice
+from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.quiet import c_stdout_silenced
@@ -204,36 +204,11 @@ class CasadiMPC(Controller):
             raise ConfigError(f"controller.sqp_iterations must be >= 1, got {sqp_iterations}")
         if int(max_detections) < 0:
             raise ConfigError(f"controller.max_detections must be >= 0, got {max_detections}")
-        if self.solver is CasadiSolver.fatrop and self.shooting is not Shooting.multiple:
-            raise ConfigError("controller.solver=fatrop needs controller.shooting=multiple "
-                              f"(got {self.shooting.value}): it exploits the stage structure")
-        if (self.solver not in (CasadiSolver.ipopt, CasadiSolver.fatrop)
-                and self.qp_solver is CasadiQpSolver.hpipm and self.shooting is Shooting.single):
-            raise ConfigError("controller.qp_solver=hpipm needs controller.shooting=multiple "
-                              "(on the single-shooting QP it crashes the process)")
         self.rti = self.solver is CasadiSolver.sqp_rti
-        if self.rti and int(sqp_iterations) != 1:
-            raise ConfigError(
-                f"controller.sqp_iterations={sqp_iterations} applies to "
-                "controller.solver=sqp_capped (sqpmethod stopped after that many SQP steps); "
-                "solver=sqp_rti takes one QP per sample: for the capped SQP use "
-                f"controller=casadi_sqp_capped controller.sqp_iterations={sqp_iterations}")
         self.codegen = bool(codegen)
-        if self.codegen and self.solver not in (CasadiSolver.sqp, CasadiSolver.fatrop):
-            raise ConfigError(f"controller.codegen=true needs controller.solver=sqp or fatrop "
-                              f"(got {self.solver.value}): the solvers whose generated C "
-                              "mpclab compiles and reads a status from")
-        self.time_cap_ms = (None if time_cap_ms is None
-                            else number(time_cap_ms, "controller.time_cap_ms", above=0))
-        if self.time_cap_ms is not None and (self.solver not in TIME_CAPPED or self.codegen):
-            why = ("generated C cannot stop at a deadline" if self.codegen else {
-                "fatrop": "fatrop has no time limit (cap its iterations: controller.max_iter)",
-                "sqp_rti": "it solves one QP per sample",
-            }[self.solver.value])
-            raise ConfigError(
-                f"controller.time_cap_ms={time_cap_ms} needs controller.solver one of "
-                f"{', '.join(TIME_CAPPED)}, without controller.codegen (got "
-                f"solver={self.solver.value}{', codegen=true' if self.codegen else ''}: {why})")
+        self.time_cap_ms = checked_choices(self.solver, self.qp_solver, self.shooting,
+                                           sqp_iterations, bool(jit), self.codegen,
+                                           time_cap_ms)
         self.log_columns = RtiLoop.columns if self.rti else ()
         self.sqp_iterations = int(sqp_iterations)
         self.jit = bool(jit)

@@ -16,6 +16,8 @@ import casadi as ca
 import numpy as np
 
 from mpclab.controllers.base import SolveStatus
+from mpclab.controllers.casadi_ocp import Shooting
+from mpclab.errors import ConfigError, number
 
 
 class CasadiSolver(StrEnum):
@@ -87,6 +89,51 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
     if status is SolveStatus.converged:  # success is False: the flag and the code disagree
         status = SolveStatus.failed
     return status, raw or unified or "unknown", iters
+
+
+def checked_choices(
+    solver: CasadiSolver, qp_solver: CasadiQpSolver, shooting: Shooting, sqp_iterations: int,
+    jit: bool, codegen: bool, time_cap_ms: Any,
+) -> float | None:
+    """The combinations of ``controller.*`` choices that cannot work, refused (a
+    :class:`ConfigError` naming the key, the value and what is valid); the time cap [ms]
+    as a number (None: none)."""
+    if solver is CasadiSolver.fatrop and shooting is not Shooting.multiple:
+        raise ConfigError("controller.solver=fatrop needs controller.shooting=multiple "
+                          f"(got {shooting.value}): it exploits the stage structure")
+    if (solver not in (CasadiSolver.ipopt, CasadiSolver.fatrop)
+            and qp_solver is CasadiQpSolver.hpipm and shooting is Shooting.single):
+        raise ConfigError("controller.qp_solver=hpipm needs controller.shooting=multiple "
+                          "(on the single-shooting QP it crashes the process)")
+    rti = solver is CasadiSolver.sqp_rti
+    if rti and int(sqp_iterations) != 1:
+        raise ConfigError(
+            f"controller.sqp_iterations={sqp_iterations} applies to "
+            "controller.solver=sqp_capped (sqpmethod stopped after that many SQP steps); "
+            "solver=sqp_rti takes one QP per sample: for the capped SQP use "
+            f"controller=casadi_sqp_capped controller.sqp_iterations={sqp_iterations}")
+    if rti and jit:
+        raise ConfigError("controller.jit=true is not available with controller.solver="
+                          "sqp_rti (its linearization and QP run uncompiled); valid: "
+                          "jit=false, or a solver that compiles: ipopt, fatrop, sqp, "
+                          "sqp_capped")
+    if codegen and solver not in (CasadiSolver.sqp, CasadiSolver.fatrop):
+        raise ConfigError(f"controller.codegen=true needs controller.solver=sqp or fatrop "
+                          f"(got {solver.value}): the solvers whose generated C "
+                          "mpclab compiles and reads a status from")
+    if time_cap_ms is None:
+        return None
+    cap = number(time_cap_ms, "controller.time_cap_ms", above=0)
+    if solver.value not in TIME_CAPPED or codegen:
+        why = ("generated C cannot stop at a deadline" if codegen else {
+            "fatrop": "fatrop has no time limit (cap its iterations: controller.max_iter)",
+            "sqp_rti": "it solves one QP per sample",
+        }[solver.value])
+        raise ConfigError(
+            f"controller.time_cap_ms={time_cap_ms} needs controller.solver one of "
+            f"{', '.join(TIME_CAPPED)}, without controller.codegen (got "
+            f"solver={solver.value}{', codegen=true' if codegen else ''}: {why})")
+    return cap
 
 
 def nlpsol_options(
