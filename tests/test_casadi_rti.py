@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+import pandas as pd
 import pytest
 
+from mpclab import record
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
@@ -127,6 +129,13 @@ def test_rti_closed_loop_records_its_phases(run_cfg) -> None:
     # only the first call prepares after its measurement
     assert s["late_preps"] == 1 and bool(calls["late_prep"].iloc[0])
     assert s["feedback_median_ms"] > 0 and s["prep_median_ms"] > 0
+
+
+def test_two_rti_runs_give_identical_step_logs(run_cfg) -> None:
+    a, _ = run_cfg(["+experiment=car_casadi", "controller=casadi_rti"], name="a")
+    b, _ = run_cfg(["+experiment=car_casadi", "controller=casadi_rti"], name="b")
+    timing = list(record.TIMING_COLUMNS)
+    pd.testing.assert_frame_equal(a.steps.drop(columns=timing), b.steps.drop(columns=timing))
 
 
 def test_measured_latency_is_the_feedback_time(run_cfg) -> None:
