@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from mpclab import record
-from mpclab.controllers.base import Controller, ControlStep, StepContext
+from mpclab.controllers.base import FEEDBACK_KEY, Controller, ControlStep, StepContext
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
@@ -119,7 +119,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             c0, t0 = time.thread_time(), time.perf_counter()
             cs = ctrl.step(t, measured, ctx)
             solve_time = time.perf_counter() - t0
-            timing = world.timing(cs.u, cs.u_pred, solve_time,
+            timing = world.timing(cs.u, cs.u_pred, cs.info.get(FEEDBACK_KEY, solve_time),
                                   None if board_time is None else board_time(cs))
             ctrl.received(timing.applied)  # the input-rate term's previous input
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step

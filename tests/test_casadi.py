@@ -113,17 +113,17 @@ def test_sqp_iterations_converge_to_ipopt() -> None:
     x = np.array([0.4, 0.8, -1.2])
     ref = _zumo(_j1_j2_j4()).step(0.0, x, _ctx())
     for shooting in ("single", "multiple"):
-        sqp = _zumo(_j1_j2_j4(), solver="sqp_rti", sqp_iterations=60, shooting=shooting)
+        sqp = _zumo(_j1_j2_j4(), solver="sqp_capped", sqp_iterations=60, shooting=shooting)
         res = sqp.step(0.0, x, _ctx())
         assert res.ok and 1 < res.iterations <= 60
         assert res.u_pred == pytest.approx(ref.u_pred, abs=1e-2), shooting
-    three = _zumo(_j1_j2_j4(), solver="sqp_rti", sqp_iterations=3, shooting="single")
+    three = _zumo(_j1_j2_j4(), solver="sqp_capped", sqp_iterations=3, shooting="single")
     res = three.step(0.0, x, _ctx())
     assert res.ok and res.iterations == 3
     assert np.all(np.abs(res.u_pred) <= 10 + 1e-9)
 
 
-@pytest.mark.parametrize("solver", ["ipopt", "sqp_rti"])
+@pytest.mark.parametrize("solver", ["ipopt", "sqp_capped"])
 def test_collision_constraint_keeps_predicted_positions_off_detected_points(solver) -> None:
     # a detected point on the straight way to the goal; J1 alone would drive through it
     x, point = np.array([0.4, 0.8, -np.pi / 2]), np.array([0.4, 0.7])
@@ -144,9 +144,9 @@ def test_collision_constraint_keeps_predicted_positions_off_detected_points(solv
 def test_within_bounds_flags_a_failed_qp_iterate() -> None:
     mpc = _zumo({"J1": GoalAttraction()}, solver="sqp_rti", shooting="single")
     w = np.zeros(mpc.ocp.lbw.size)
-    assert mpc._within_bounds(w)
+    assert mpc.starts.within_bounds(w)
     w[3] = 10.5   # an input beyond |u| <= 10, as a silently failed QP leaves it
-    assert not mpc._within_bounds(w)
+    assert not mpc.starts.within_bounds(w)
 
 
 def test_new_options_are_checked() -> None:

@@ -90,7 +90,7 @@ def test_fatrop_status_success_and_iteration_cap(zumo_setup) -> None:
 
 def test_sqp_iteration_cap_is_truncated_never_converged(zumo_setup) -> None:
     x, det, active = STATES[0]
-    res = _mpc(zumo_setup, solver="sqp_rti", qp_solver="qpoases", shooting="single",
+    res = _mpc(zumo_setup, solver="sqp_capped", qp_solver="qpoases", shooting="single",
                sqp_iterations=2).step(0.0, x, _ctx(det, active))
     assert res.status is SolveStatus.truncated and res.iterations == 2
 

@@ -1,10 +1,11 @@
 """The control horizon (move blocking) on every backend that solves an OCP.
 
 One blocking definition (:mod:`mpclab.controllers.blocking`) for CVXPY, CasADi (IPOPT,
-fatrop, SQP, SQP-RTI, single shooting, generated C) and the scheduled backend. Checked here:
-``control_horizon = horizon`` gives each backend's unblocked plan; the CVXPY and CasADi car
-plans agree at ``Nc = 3`` and with a list of blocks; the plan holds its input within each
-block; the decision vector holds ``Nc * nu`` free inputs; the summary records the blocking.
+fatrop, SQP, the real-time iteration, capped SQP, single shooting, generated C), Uno and
+the scheduled backend. Checked here: ``control_horizon = horizon`` gives each backend's
+unblocked plan; the CVXPY and CasADi car plans agree at ``Nc = 3`` and with a list of
+blocks; the plan holds its input within each block; the decision vector holds ``Nc * nu``
+free inputs; the summary records the blocking.
 
 Stated tolerances: plans of one backend blocked as ``horizon`` and unblocked are the same
 problem, 1e-9 on the inputs; CVXPY's successive linearization and CasADi's NLP solvers to
@@ -44,6 +45,8 @@ CAR_BACKENDS = {
     "fatrop": ("car_casadi", ["controller=casadi_fatrop", "controller.jit=false"]),
     "sqp": ("car_casadi", ["controller.jit=false"]),
     "sqp_rti": ("car_casadi", ["controller=casadi_rti"]),
+    "sqp_capped": ("car_casadi", ["controller=casadi_sqp_capped"]),
+    "uno": ("car_casadi", ["controller=casadi_uno"]),
 }
 
 
@@ -133,7 +136,7 @@ def test_cvxpy_and_casadi_car_plans_agree_under_blocking(control_horizon, value)
     assert ref.status == "converged"
     # held within each block: one free move per block
     assert_held(ref.u_pred, blocking)
-    for backend in ("cvxpy", "ipopt_single", "fatrop", "sqp"):
+    for backend in ("cvxpy", "ipopt_single", "fatrop", "sqp", "uno"):
         res = plan(car(backend, control_horizon))
         assert res.status == "converged", backend
         np.testing.assert_allclose(res.u_pred, ref.u_pred, rtol=0, atol=1e-4, err_msg=backend)
@@ -143,16 +146,16 @@ def test_cvxpy_and_casadi_car_plans_agree_under_blocking(control_horizon, value)
 def test_the_decision_vector_holds_nc_times_nu_free_inputs() -> None:
     """What is counted, per backend: CVXPY, the QP's input variable (beside its states
     ``X``); CasADi, the free moves in the NLP's variables, and the whole vector: IPOPT
-    substitutes the moves (states + moves), fatrop and SQP hold them as states (states +
-    held inputs + moves), single shooting has the moves only; the scheduled backend, its
-    QP's variables."""
+    substitutes the moves (states + moves), as Uno does, fatrop and SQP hold them as states
+    (states + held inputs + moves), single shooting has the moves only; the scheduled
+    backend, its QP's variables."""
     nc, nx, nu = 3, 5, 2
     cv = car("cvxpy", str(nc))
     assert cv.V.size == nc * nu and cv.X.size == (T + 1) * nx
     sizes = {"ipopt": (T + 1) * nx + nc * nu,
              "fatrop": (T + 1) * (nx + nu) + nc * nu,
              "sqp": (T + 1) * (nx + nu) + nc * nu,
-             "ipopt_single": nc * nu}
+             "ipopt_single": nc * nu, "uno": (T + 1) * nx + nc * nu}
     for backend, size in sizes.items():
         ocp = car(backend, str(nc)).ocp
         assert ocp.u_idx.size == nc * nu and ocp.lbw.size == size, backend

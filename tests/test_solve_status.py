@@ -115,8 +115,8 @@ def test_summary_counts_every_status(run_cfg) -> None:
     (["+experiment=car_casadi", "controller.max_iter=1"], 1),          # SQP + qrqp
     (["+experiment=car_casadi", "controller.max_iter=3"], 3),
     (["+experiment=zumo_bug2", "controller.max_iter=3"], 3),           # fatrop
-    (["+experiment=zumo_bug2", "controller=casadi_rti", "controller.sqp_iterations=1"], 1),
-    (["+experiment=zumo_bug2", "controller=casadi_rti", "controller.sqp_iterations=5"], 5),
+    (["+experiment=zumo_bug2", "controller=casadi_sqp_capped", "controller.sqp_iterations=1"], 1),
+    (["+experiment=zumo_bug2", "controller=casadi_sqp_capped", "controller.sqp_iterations=5"], 5),
 ], ids=["car_sqp_1", "car_sqp_3", "zumo_fatrop_3", "zumo_rti_1", "zumo_rti_5"])
 def test_any_iteration_cap_is_truncated_never_an_exception(run_cfg, overrides, cap) -> None:
     res, _ = run_cfg([*overrides, "scenario.t_max=2.0"])

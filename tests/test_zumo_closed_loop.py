@@ -65,7 +65,7 @@ def test_bug2_on_random_layouts(run_cfg, seed) -> None:
 def test_bug2_dead_end_on_two_sqp_steps_with_the_hard_constraint(run_cfg) -> None:
     """The truncated option still arrives, honestly labelled (one SQP step a sample stalls
     at the dead end's corner: the plan is too far from converged to track the path)."""
-    res, _ = run_cfg(["+experiment=zumo_bug2", "controller=casadi_rti",
+    res, _ = run_cfg(["+experiment=zumo_bug2", "controller=casadi_sqp_capped",
                       "controller.sqp_iterations=2", "objective.constraints.obstacles.mode=hard"])
     s = res.summary
     assert s["status"] == "arrived" and s["solver_failures"] == 0, s

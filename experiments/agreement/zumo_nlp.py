@@ -18,7 +18,7 @@ Gaussian noise to the pose (``--sigma``; redrawn if the robot would touch an obs
 sensed and supervised afresh from the supervisor's state at that step.
 
 **Backends** (``BACKENDS``): the experiment composed with ``controller=casadi_fatrop``,
-``casadi`` (IPOPT), ``casadi_rti`` (SQP truncated at ``sqp_iterations``; ``truncated`` when
+``casadi`` (IPOPT), ``casadi_sqp_capped`` (SQP truncated at ``sqp_iterations``; ``truncated`` when
 it stops there) and ``nn`` (the net in ``--nn-weights``). Each is reset at the state, given
 the run's previous plan and called once through ``controller.step``.
 
@@ -64,7 +64,7 @@ from mpclab.status import SolveStatus  # noqa: E402
 BACKENDS: dict[str, list[str]] = {
     "fatrop": ["controller=casadi_fatrop"],
     "ipopt": ["controller=casadi"],
-    "rti": ["controller=casadi_rti", "controller.sqp_iterations=3"],
+    "rti": ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
 }
 NN_WEIGHTS = ROOT / "experiments/zumo_nn/weights.npz"
 QUIET = ["recorder=none", "progress=false", "figures.enabled=false", "sim=nominal"]

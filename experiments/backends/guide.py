@@ -83,8 +83,9 @@ CASES = [
         backends={
             "casadi_fatrop": ["+experiment=zumo_bug2"],
             "casadi": ["+experiment=zumo_bug2", "controller=casadi"],
-            "casadi_rti (3 SQP steps)": ["+experiment=zumo_bug2", "controller=casadi_rti",
-                                         "controller.sqp_iterations=3"],
+            "casadi_sqp_capped (3 SQP steps)": [
+                "+experiment=zumo_bug2", "controller=casadi_sqp_capped",
+                "controller.sqp_iterations=3"],
             "casadi_sqp": ["+experiment=zumo_bug2", "controller=casadi_sqp"],
             "nn": ["+experiment=zumo_nn"],
         },
@@ -117,8 +118,8 @@ CASES = [
 ]
 
 #: zumo_nlp's backend labels -> this guide's
-ZUMO_LABELS = {"fatrop": "casadi_fatrop", "ipopt": "casadi", "rti": "casadi_rti (3 SQP steps)",
-               "nn": "nn"}
+ZUMO_LABELS = {"fatrop": "casadi_fatrop", "ipopt": "casadi",
+               "rti": "casadi_sqp_capped (3 SQP steps)", "nn": "nn"}
 
 
 def closed_loops(case: PlantCase, label: str) -> dict[str, Any]:

@@ -45,7 +45,8 @@ BACKENDS = {
     "bug2": {
         "fatrop (jit)": ["+experiment=zumo_bug2"],
         "IPOPT": ["+experiment=zumo_bug2", "controller=casadi"],
-        "SQP-RTI 3 it. (truncated)": ["+experiment=zumo_bug2", "controller=casadi_rti",
+        "SQP-RTI 3 it. (truncated)": ["+experiment=zumo_bug2",
+                                      "controller=casadi_sqp_capped",
                                       "controller.sqp_iterations=3"],
     },
 }

@@ -89,7 +89,7 @@ def main() -> None:
     ap.add_argument("--scenario", default="zumo_wall")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--backend", nargs="*",
-                    default=["controller=casadi_rti", "controller.sqp_iterations=3"],
+                    default=["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
                     help="overrides of the third controller (default: 3-step SQP RTI)")
     ap.add_argument("--md", type=Path, help="also write the stamped table here")
     args = ap.parse_args()

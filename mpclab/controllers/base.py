@@ -71,6 +71,12 @@ class StepContext:
     predict: bool = False
 
 
+#: ``ControlStep.info``'s key of the part of a call from its start to the input [s], for a
+#: controller that works on after its input is known (the real-time iteration prepares its
+#: next solve): the loop's ``measured`` latency is that part, not the whole call
+FEEDBACK_KEY = "feedback_s"
+
+
 @dataclass
 class ControlStep:
     """One controller call's result.

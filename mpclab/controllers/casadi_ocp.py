@@ -68,6 +68,16 @@ class Params:
     def names(self) -> list[str]:
         return list(self._syms)
 
+    def indices(self, name: str) -> np.ndarray:
+        """Where the parameter ``name`` sits in the vector (its entries, column-major)."""
+        start = 0
+        for n, s in self._syms.items():
+            size = int(s.numel())
+            if n == name:
+                return np.arange(start, start + size)
+            start += size
+        raise KeyError(f"no parameter {name!r}; declared: {', '.join(self._syms)}")
+
     @property
     def vector(self) -> ca.SX:
         return ca.vertcat(*(ca.vec(s) for s in self._syms.values()))

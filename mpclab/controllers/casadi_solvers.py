@@ -2,7 +2,8 @@
 
 ``read_status`` maps any ``nlpsol``'s stats (or a solver buffer's) to :class:`SolveStatus`;
 ``nlpsol_options`` gives the plugin and its options for ``controller.solver`` (and
-``controller.qp_solver`` under SQP).
+``controller.qp_solver`` under SQP, :func:`qp_options`; the real-time iteration,
+``sqp_rti``, solves its QPs itself: :mod:`mpclab.controllers.casadi_rti`).
 """
 
 from __future__ import annotations
@@ -15,13 +16,23 @@ import casadi as ca
 import numpy as np
 
 from mpclab.controllers.base import SolveStatus
+from mpclab.controllers.casadi_ocp import Shooting
+from mpclab.errors import ConfigError, number
 
 
 class CasadiSolver(StrEnum):
     ipopt = "ipopt"
     fatrop = "fatrop"
     sqp = "sqp"
+    #: the real-time iteration: one QP per sample, prepared before the measurement
     sqp_rti = "sqp_rti"
+    #: sqpmethod stopped after ``sqp_iterations`` SQP steps, all after the measurement
+    sqp_capped = "sqp_capped"
+
+
+#: the solvers whose solve ``controller.time_cap_ms`` can stop at a wall-clock deadline
+#: (IPOPT's ``max_wall_time``; sqpmethod through an iteration callback)
+TIME_CAPPED = ("ipopt", "sqp", "sqp_capped")
 
 
 class CasadiQpSolver(StrEnum):
@@ -80,17 +91,67 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
     return status, raw or unified or "unknown", iters
 
 
+def checked_choices(
+    solver: CasadiSolver, qp_solver: CasadiQpSolver, shooting: Shooting, sqp_iterations: int,
+    jit: bool, codegen: bool, time_cap_ms: Any,
+) -> float | None:
+    """The combinations of ``controller.*`` choices that cannot work, refused (a
+    :class:`ConfigError` naming the key, the value and what is valid); the time cap [ms]
+    as a number (None: none)."""
+    if solver is CasadiSolver.fatrop and shooting is not Shooting.multiple:
+        raise ConfigError("controller.solver=fatrop needs controller.shooting=multiple "
+                          f"(got {shooting.value}): it exploits the stage structure")
+    if (solver not in (CasadiSolver.ipopt, CasadiSolver.fatrop)
+            and qp_solver is CasadiQpSolver.hpipm and shooting is Shooting.single):
+        raise ConfigError("controller.qp_solver=hpipm needs controller.shooting=multiple "
+                          "(on the single-shooting QP it crashes the process)")
+    rti = solver is CasadiSolver.sqp_rti
+    if rti and int(sqp_iterations) != 1:
+        raise ConfigError(
+            f"controller.sqp_iterations={sqp_iterations} applies to "
+            "controller.solver=sqp_capped (sqpmethod stopped after that many SQP steps); "
+            "solver=sqp_rti takes one QP per sample: for the capped SQP use "
+            f"controller=casadi_sqp_capped controller.sqp_iterations={sqp_iterations}")
+    if rti and jit:
+        raise ConfigError("controller.jit=true is not available with controller.solver="
+                          "sqp_rti (its linearization and QP run uncompiled); valid: "
+                          "jit=false, or a solver that compiles: ipopt, fatrop, sqp, "
+                          "sqp_capped")
+    if codegen and solver not in (CasadiSolver.sqp, CasadiSolver.fatrop):
+        raise ConfigError(f"controller.codegen=true needs controller.solver=sqp or fatrop "
+                          f"(got {solver.value}): the solvers whose generated C "
+                          "mpclab compiles and reads a status from")
+    if time_cap_ms is None:
+        return None
+    cap = number(time_cap_ms, "controller.time_cap_ms", above=0)
+    if solver.value not in TIME_CAPPED or codegen:
+        why = ("generated C cannot stop at a deadline" if codegen else {
+            "fatrop": "fatrop has no time limit (cap its iterations: controller.max_iter)",
+            "sqp_rti": "it solves one QP per sample",
+        }[solver.value])
+        raise ConfigError(
+            f"controller.time_cap_ms={time_cap_ms} needs controller.solver one of "
+            f"{', '.join(TIME_CAPPED)}, without controller.codegen (got "
+            f"solver={solver.value}{', codegen=true' if codegen else ''}: {why})")
+    return cap
+
+
 def nlpsol_options(
     solver: CasadiSolver, qp_solver: CasadiQpSolver, *, max_iter: int, tol: float,
     sqp_iterations: int, warm_start: bool, equality: list[bool],
+    time_cap_s: float | None = None,
 ) -> tuple[str, dict[str, Any]]:
-    """The ``nlpsol`` plugin name and options of a solver choice (quiet, status-robust)."""
+    """The ``nlpsol`` plugin name and options of a solver choice (quiet, status-robust);
+    ``time_cap_s`` is IPOPT's ``max_wall_time`` (sqpmethod's cap is an iteration callback,
+    :mod:`mpclab.controllers.casadi_time_cap`, added by the caller)."""
     opts: dict[str, Any] = {"print_time": False}
     if solver is CasadiSolver.ipopt:
         opts |= {"ipopt.print_level": 0, "ipopt.sb": "yes",
                  "ipopt.max_iter": max_iter, "ipopt.tol": tol}
         if warm_start:
             opts["ipopt.warm_start_init_point"] = "yes"
+        if time_cap_s is not None:
+            opts["ipopt.max_wall_time"] = time_cap_s
         name = "ipopt"
     elif solver is CasadiSolver.fatrop:
         opts |= {"structure_detection": "auto", "equality": equality,
@@ -98,26 +159,31 @@ def nlpsol_options(
                  "fatrop.tol": tol}
         name = "fatrop"
     else:
-        qp_opts = {
-            CasadiQpSolver.qpoases: {"printLevel": "none"},
-            CasadiQpSolver.osqp: {"osqp": {"verbose": False}},
-            CasadiQpSolver.qrqp: {"print_iter": False, "print_header": False,
-                            "print_info": False},
-            CasadiQpSolver.piqp: {"piqp": {"verbose": False}},
-            CasadiQpSolver.proxqp: {"proxqp": {"verbose": False}},
-        }.get(qp_solver, {}) | {"error_on_fail": False}
-        rti = solver is CasadiSolver.sqp_rti
+        capped = solver is CasadiSolver.sqp_capped
         opts |= {
             "print_header": False, "print_iteration": False, "print_status": False,
-            "max_iter": sqp_iterations if rti else max_iter,
+            "max_iter": sqp_iterations if capped else max_iter,
             "tol_pr": tol, "tol_du": tol,
-            "qpsol": qp_solver.value, "qpsol_options": qp_opts,
+            "qpsol": qp_solver.value, "qpsol_options": qp_options(qp_solver),
             "convexify_strategy": "eigen-clip",
             "max_iter_eig": 500,  # the default 50 left dense Hessians undecomposed
             "error_on_fail": False,
         }
         name = "sqpmethod"
     return name, opts
+
+
+def qp_options(qp_solver: CasadiQpSolver) -> dict[str, Any]:
+    """A QP solver's options for ``conic`` (or sqpmethod's ``qpsol_options``): quiet, and a
+    failed QP a status, not an exception."""
+    return {
+        CasadiQpSolver.qpoases: {"printLevel": "none"},
+        CasadiQpSolver.osqp: {"osqp": {"verbose": False}},
+        CasadiQpSolver.qrqp: {"print_iter": False, "print_header": False,
+                              "print_info": False},
+        CasadiQpSolver.piqp: {"piqp": {"verbose": False}},
+        CasadiQpSolver.proxqp: {"proxqp": {"verbose": False}},
+    }.get(qp_solver, {}) | {"error_on_fail": False}
 
 
 def bind_buffers(

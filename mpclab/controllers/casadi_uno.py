@@ -4,7 +4,9 @@ It reuses the CasADi backend's OCP (:func:`~mpclab.controllers.casadi_ocp.build_
 multiple shooting over the plant's RK4 step, the objective's CasADi terms, named parameters)
 and hands it to CasADi's ``uno`` plugin, the unified NLP solver of Vanaret and Leyffer:
 ``preset: filtersqp`` (trust-region filter SQP) or ``ipopt`` (its interior point). Obstacle
-free: the NLP has no room for detected points (``max_detections = 0``).
+free: the NLP has no room for detected points (``max_detections = 0``). A control horizon
+blocks the moves as every backend does (:mod:`mpclab.controllers.blocking`): the NLP's
+inputs are the free moves.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from mpclab.controllers.base import (
     shift,
     terminal_rows,
 )
+from mpclab.controllers.blocking import Blocking, ControlHorizon
 from mpclab.controllers.casadi_ocp import Shooting, build_ocp
 from mpclab.controllers.casadi_solvers import read_status
 from mpclab.errors import ConfigError, parse_choice
@@ -54,6 +57,9 @@ class UnoMPC(Controller):
         Injected; every objective term must support CasADi.
     horizon, dt
         Prediction steps and sample time [s].
+    control_horizon
+        The free moves: null (all), an integer ``Nc`` (the last held to the end) or a list
+        of block lengths (:mod:`mpclab.controllers.blocking`).
     preset
         Uno's strategy: ``filtersqp`` or ``ipopt``.
     max_iter, tol
@@ -73,12 +79,14 @@ class UnoMPC(Controller):
 
     def __init__(
         self, plant: Plant, objective: Objective, horizon: int = 10, dt: float = 0.1,
+        control_horizon: ControlHorizon = None,
         preset: UnoPreset | str = UnoPreset.filtersqp, max_iter: int = 100, tol: float = 1e-6,
         initial_input: Mapping[str, float] | None = None,
         terminal_constraint: Mapping[str, float] | None = None,
         delay_compensation: bool = False,
     ) -> None:
         super().__init__(plant, horizon, dt, delay_compensation)
+        self.blocking = Blocking.of(control_horizon, self.horizon)
         self.preset = parse_choice(UnoPreset, preset, "controller.preset")
         if int(max_iter) < 1:
             raise ConfigError(f"controller.max_iter must be >= 1, got {max_iter}")
@@ -92,7 +100,7 @@ class UnoMPC(Controller):
         self._u_guess = input_vector(plant, initial_input, "controller.initial_input")
         terminal = terminal_rows(plant, terminal_constraint)
         self.ocp = build_ocp(plant, objective, self._names, self.horizon, self.dt,
-                             Shooting.multiple, 0, (), terminal)
+                             Shooting.multiple, 0, (), terminal, self.blocking)
         self.solver = ca.nlpsol("mpc", "uno", self.ocp.nlp, {"print_time": False, "uno": {
             "preset": self.preset.value, "logger": "SILENT", "print_solution": False,
             "max_iterations": int(max_iter), "primal_tolerance": float(tol),
@@ -108,7 +116,7 @@ class UnoMPC(Controller):
         else:
             X, U = shift(prev.x_pred), shift(prev.u_pred)
         w0 = np.zeros(ocp.lbw.size)
-        w0[ocp.x_idx], w0[ocp.u_idx] = X, U
+        w0[ocp.x_idx], w0[ocp.u_idx] = X, self.blocking.reblock(U)  # the moves
         w0[ocp.x_idx[0]] = x
         active = [1.0 if ctx.active is None or n in ctx.active else 0.0 for n in self._names]
         p = ocp.params.pack(
@@ -121,7 +129,8 @@ class UnoMPC(Controller):
         if status not in USABLE:
             return self._failed(status, x, raw, iterations=iters)
         w = sol["x"].full().ravel()
-        return ControlStep(u=w[ocp.u_idx[0]], x_pred=w[ocp.x_idx], u_pred=w[ocp.u_idx],
+        U = self.blocking.expand(w[ocp.u_idx])
+        return ControlStep(u=U[0], x_pred=w[ocp.x_idx], u_pred=U,
                            status=status, cost=float(sol["f"]), solver_status=raw,
                            iterations=iters)
 

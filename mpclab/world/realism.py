@@ -12,10 +12,11 @@ instant the state was measured, and the simulator integrates the controller's ow
   ``t_k+1`` and its input acts from ``t_k+1``, however long the solve took. ``recorded``
   draws each latency, seeded, from a recorded distribution (``latency_profile``: a CSV or
   Parquet file with a ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run
-  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run;
-  ``modelled`` is each call's time on the board the controller models
-  (``Controller.board_time_model``: the scheduled controller's generated C on the F401RE,
-  ``sim=embedded_m4``).
+  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run
+  (the part of the call before its input, ``feedback_s``, for a controller that prepares
+  its next solve after it: the real-time iteration); ``modelled`` is each call's time on the
+  board the controller models (``Controller.board_time_model``: the scheduled controller's
+  generated C on the F401RE, ``sim=embedded_m4``).
   A solve whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control
   period) is a deadline miss, and ``deadline_policy`` says what happens: ``hold`` (its input
   never acts; the applied one holds), ``plan`` (its input never acts; the next input of the
