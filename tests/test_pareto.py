@@ -73,6 +73,24 @@ def test_points_front_knee_and_default() -> None:
     assert list(on["controller.horizon"]) == [14, 10, 6]  # by the first objective
 
 
+def test_a_tie_within_the_tolerance_is_decided_by_the_other_objective() -> None:
+    """Two builds of one controller that track alike to 3e-6 m (double and single precision)
+    are told apart by their compute alone: the slower is off the front; a real difference in
+    tracking (0.3 %) keeps a slower point on it."""
+    rows, step_ms = [], {}
+    points = {"double": (0.060053, 1.16), "single": (0.060056, 0.114), "other": (0.0602, 0.05)}
+    for name, (rms, ms) in points.items():
+        run = f"/nowhere/{name}"
+        rows.append({"controller.codegen_precision": name, "seed": 0, "run_dir": run,
+                     "status": "arrived", "rms_position": rms})
+        step_ms[run] = np.full(20, ms)
+    df = pd.DataFrame(rows)
+    df.attrs["params"] = ["controller.codegen_precision", "seed"]
+    objectives = (ParetoObjective.tracking_rms_m, ParetoObjective.step_p95_ms)
+    pts = pareto_points(df, objectives, step_ms).set_index("controller.codegen_precision")
+    assert pts["front"].to_dict() == {"double": False, "other": True, "single": True}
+
+
 def test_objectives_and_override_values() -> None:
     assert parse_objectives(None) == OBJ
     assert parse_objectives("tracking_rms_m, step_cpu_p95_ms") == (
@@ -218,7 +236,8 @@ def test_the_bicycle_front_is_configured_on_the_cortex_m4_estimate() -> None:
     assert cfg.sim.name == "embedded_m4" and cfg.recorder._target_.endswith("base.Recorder")
     sweep = OmegaConf.load(ROOT / "conf" / "sweep" / "pareto_bicycle.yaml").hydra
     assert set(sweep.sweeper.params) == {"controller.horizon", "controller.dt",
-                                         "controller.control_horizon"}
+                                         "controller.control_horizon",
+                                         "controller.codegen_precision"}
     objectives = parse_objectives(list(sweep.callbacks.sweep.pareto.objectives))
     assert objectives == (ParetoObjective.tracking_rms_m, ParetoObjective.step_m4_p95_ms)
     rows = [{"controller.horizon": h, "seed": 0, "run_dir": f"/nowhere/{h}", "status": "arrived",

@@ -3,7 +3,8 @@
 ``pareto.csv`` holds the front's points (each with its override list, its seeds' outcomes
 and each objective's spread over the seeds), ``pareto_points.csv`` every point, and
 ``pareto.png`` draws them: every feasible point grey, the excluded ones as crosses, the front
-joined and labelled, the shipped default marked, the knee ringed. The multirun callback
+joined and numbered (the numbers named below the axes), the shipped default marked, the
+knee ringed. The multirun callback
 writes them when a sweep whose config asks for a front ends (``hydra.callbacks.sweep.pareto``,
 the ``sweep=pareto_*`` configs); ``python -m mpclab.tables --pareto DIR`` writes them for any
 sweep folder. What a point, the front, the knee and the default are:
@@ -150,14 +151,23 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
         ax.xaxis.set_minor_formatter(plt.FuncFormatter(  # 2 and 5 of each decade, plainly
             lambda v, _: f"{v:g}" if f"{v:g}"[0] in "25" else ""))
     _frame_medians(ax, points, xcol, ycol)
-    for i, (_, r) in enumerate(on.iterrows()):  # alternately above and below
-        _annotate(ax, point_label(r, keys), r[xcol], r[ycol], 6 if i % 2 else -12, "k")
+    # each front point numbered at its marker and named in the key below the figure (long
+    # labels beside the points overlap where the front is dense)
+    key_lines = []
+    for i, (_, r) in enumerate(on.iterrows(), start=1):  # alternately above and below
+        _annotate(ax, str(i), r[xcol], r[ycol], 5 if i % 2 else -11, "k")
+        key_lines.append(f"{i}: {point_label(r, keys)}"
+                         + (" (knee)" if r["knee"] else "") + (" (default)" if r["default"] else ""))
     for _, r in points[points["default"] & ~points["front"]].iterrows():  # named, off the front
-        _annotate(ax, f"default: {point_label(r, keys)}", r[xcol], r[ycol], 8, "tab:blue")
+        _annotate(ax, "D", r[xcol], r[ycol], 7, "tab:blue")
+        key_lines.append(f"D: {point_label(r, keys)} (default, off the front)")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8,
               frameon=False)  # below the axes: no point hides behind it
     fig.tight_layout()
+    if key_lines:
+        fig.text(0.06, -0.02, "\n".join(key_lines), ha="left", va="top", fontsize=8,
+                 family="monospace")
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return Path(path)

@@ -14,7 +14,9 @@ each per seed, and the point's value the median over its seeds, with the seeds' 
 beside it (``_min``, ``_max``). A point is **feasible** when
 every seed arrived, none collided or failed, and none missed a deadline (runs under
 ``sim.latency``). The **front** is the feasible points that no feasible point dominates (at
-most as large in every objective and smaller in one). The **knee** is the front point nearest
+most as large in every objective and smaller in one, where values within
+:data:`TIE_TOLERANCE` of each other count as equal: two builds that track alike to 1e-5 m
+are not told apart by their tracking, only by their compute). The **knee** is the front point nearest
 the ideal one (every objective at its best on the front), the objectives scaled to [0, 1]
 over the front. The **default** is the point of the values the sweep's base config gives
 the varied parameters (the configuration that ships), when the sweep has one.
@@ -58,6 +60,9 @@ LABELS = {
 _PER_SEED = {ParetoObjective.arrival_s: "arrival_time_s",
              ParetoObjective.tracking_rms_m: "rms_position",
              ParetoObjective.step_m4_p95_ms: "step_m4_p95_ms"}
+#: objective values closer than this fraction of the larger one's magnitude are a tie for
+#: dominance (below any difference a closed-loop objective resolves)
+TIE_TOLERANCE = 1e-3
 #: the objectives of a sweep that says none
 DEFAULT_OBJECTIVES = (ParetoObjective.arrival_s, ParetoObjective.step_p95_ms)
 
@@ -184,7 +189,8 @@ def _call_ms(run_dir: str, obj: ParetoObjective,
 
 
 def _non_dominated(points: pd.DataFrame, names: list[str]) -> pd.Series:
-    """Feasible points with every objective finite that no such point dominates."""
+    """Feasible points with every objective finite that no such point dominates (ties
+    within :data:`TIE_TOLERANCE`)."""
     if points.empty:
         return pd.Series(dtype=bool)
     F = points[names].to_numpy(dtype=float)
@@ -192,8 +198,10 @@ def _non_dominated(points: pd.DataFrame, names: list[str]) -> pd.Series:
     on = np.zeros(len(points), dtype=bool)
     for i in np.flatnonzero(ok):
         others = F[ok]
-        dominated = ((others <= F[i]).all(axis=1) & (others < F[i]).any(axis=1)).any()
-        on[i] = not dominated
+        tie = TIE_TOLERANCE * np.maximum(np.abs(others), np.abs(F[i]))
+        no_worse = (others <= F[i] + tie).all(axis=1)
+        better = (others < F[i] - tie).any(axis=1)
+        on[i] = not (no_worse & better).any()
     return pd.Series(on, index=points.index)
 
 
