@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from enum import StrEnum
 from types import MappingProxyType
 from typing import Any
@@ -54,9 +53,9 @@ from mpclab.controllers.qp_dense import (
 )
 from mpclab.controllers.scheduled_c import M4_COLUMN, ScheduledSIL
 from mpclab.controllers.scheduled_grid import TWO_PI, OperatingGrid
+from mpclab.controllers.scheduled_models import OpModel, switch_metrics, tracking_weights
 from mpclab.errors import ConfigError, parse_choice
 from mpclab.objectives.base import Objective
-from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.base import Plant
 from mpclab.registry import component
 from mpclab.status import Problem
@@ -161,7 +160,7 @@ class ScheduledMPC(Controller):
                 f"controller.solver=closed_form needs 2 free variables (2 inputs, control "
                 f"horizon 1); this problem has {nz}: use auto or active_set"
             )
-        self.qp = TrackingQP(*_weights(objective, plant), self.blocking)
+        self.qp = TrackingQP(*tracking_weights(objective, plant), self.blocking)
         self.lb = np.tile(plant.u_lb, M)
         self.ub = np.tile(plant.u_ub, M)
         self._bounds = tuple(float(v) for pair in zip(self.lb, self.ub, strict=True) for v in pair)
@@ -230,7 +229,7 @@ class ScheduledMPC(Controller):
             # 2 pi k in theta: g and X gain k times these
             g_shift = TWO_PI * (Kr @ e_theta - (Kx[:, th] if th is not None else 0.0))
             x_shift = TWO_PI * (e_theta - (Px[:, th] if th is not None else 0.0))
-            self.models.append(_OpModel(
+            self.models.append(OpModel(
                 Px, Pu, pc, H, Kx, kc, Kr, g_shift, x_shift,
                 K=np.hstack([Kx, -Kr, kc[:, None]]), P=np.hstack([Px, Pu, pc[:, None]]),
                 h=(float(H[0, 0]), float(H[0, 1]), float(H[-1, -1])),
@@ -391,70 +390,4 @@ class ScheduledMPC(Controller):
             out["generated_c"] = [str(p) for p in self._sil.library.generated]
             out["codegen_precision"] = self.codegen_precision.value
             out |= self._sil.board_summary(calls)
-        if len(ops) < 2:
-            return out | {"n_switches": 0}
-        switch = np.flatnonzero(ops[1:] != ops[:-1]) + 1
-        out["n_switches"] = int(switch.size)
-        out["switch_times_s"] = [round(float(v), 6) for v in calls["t"].to_numpy()[switch]]
-        jumps = np.abs(np.diff(U, axis=0))[switch - 1] if switch.size else np.zeros((0, U.shape[1]))
-        span = self.plant.u_ub - self.plant.u_lb
-        for j, lab in enumerate(self.plant.inputs):
-            out[f"switch_jump_max_{lab}"] = float(jumps[:, j].max()) if switch.size else 0.0
-        rel = jumps / np.where(np.isfinite(span), span, np.inf)
-        out["switch_jump_max_rel"] = float(rel.max()) if switch.size else 0.0
-        return out
-
-
-@dataclass
-class _OpModel:
-    Px: FloatArray
-    Pu: FloatArray
-    pc: FloatArray
-    H: FloatArray
-    Kx: FloatArray
-    kc: FloatArray
-    Kr: FloatArray
-    g_shift: FloatArray
-    x_shift: FloatArray
-    #: [Kx, -Kr, kc]: g = K [x; ref; 1]
-    K: FloatArray
-    #: [Px, Pu, pc]: X = P [x; z; 1]
-    P: FloatArray
-    #: H entries (h00, h01, h11) as floats, for the closed form
-    h: tuple[float, float, float]
-    #: the operating point's heading (0 without a periodic scheduling state)
-    theta: float
-
-    def __post_init__(self) -> None:
-        #: g_shift as floats, for the closed form
-        self.gs = tuple(self.g_shift.tolist())
-
-
-def _weights(objective: Objective, plant: Plant) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Diagonal state, terminal and input weights summed over the objective's terms."""
-    q, qT, r = np.zeros(plant.nx), np.zeros(plant.nx), np.zeros(plant.nu)
-    for con in objective.constraints.values():  # its QP has no rows for them
-        con.require("scheduled")
-    for term in objective:
-        if not isinstance(term, QuadraticTracking):
-            raise ConfigError(
-                f"objective term {term.name!r} ({type(term).__name__}) cannot be expressed by "
-                "the scheduled backend, which takes QuadraticTracking terms only; backends "
-                f"that accept it: {', '.join(term.backends()) or '(none)'}"
-            )
-        try:
-            for label, w in term.state_weights.items():
-                q[plant.state_index(label)] += float(w)
-            for label, w in term.terminal_weights.items():
-                qT[plant.state_index(label)] += float(w)
-            for label, w in term.input_weights.items():
-                r[plant.input_index(label)] += float(w)
-        except ValueError as exc:
-            raise ConfigError(f"objective term {term.name!r}: {exc}") from None
-    if not r.all():
-        raise ConfigError(
-            "the scheduled backend needs a positive weight on every input (the QP must be "
-            f"strictly convex); got input weights {dict(zip(plant.inputs, r, strict=True))}"
-        )
-    return q, qT, r
-
+        return out | switch_metrics(calls["t"].to_numpy(dtype=float), ops, U, self.plant)
