@@ -10,7 +10,7 @@ from mpclab.constraints.base import Constraint
 from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.scheduled import _weights
+from mpclab.controllers.scheduled_models import tracking_weights
 from mpclab.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
@@ -123,7 +123,7 @@ def test_a_backend_that_cannot_express_it_refuses_naming_it() -> None:
     # the scheduled backend's QP has no rows for constraints: it refuses them, not drops them
     track = QuadraticTracking(state_weights={"x": 1.0}, input_weights={"u1": 1.0, "u2": 1.0})
     with pytest.raises(ConfigError, match="'o' .*scheduled backend.*accept it: casadi, cvxpy"):
-        _weights(Objective({"t": track}, {"o": _con("soft")}), Zumo())
+        tracking_weights(Objective({"t": track}, {"o": _con("soft")}), Zumo())
 
 
 def test_bad_options_name_the_key_and_choices() -> None:
