@@ -72,6 +72,7 @@ CASES = [
             "casadi": ["+experiment=car_casadi", "controller=casadi"],
             "casadi_sqp": ["+experiment=car_casadi"],
             "casadi_fatrop": ["+experiment=car_casadi", "controller=casadi_fatrop"],
+            "casadi_rti": ["+experiment=car_casadi", "controller=casadi_rti"],
         },
         samples={"car_to_origin": [0, 6, 15]}, sampler=["+experiment=car_casadi"],
     ),
@@ -86,6 +87,7 @@ CASES = [
             "casadi_sqp_capped (3 SQP steps)": [
                 "+experiment=zumo_bug2", "controller=casadi_sqp_capped",
                 "controller.sqp_iterations=3"],
+            "casadi_rti": ["+experiment=zumo_bug2", "controller=casadi_rti"],
             "casadi_sqp": ["+experiment=zumo_bug2", "controller=casadi_sqp"],
             "nn": ["+experiment=zumo_nn"],
         },

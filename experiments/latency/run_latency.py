@@ -5,8 +5,10 @@ Every backend of Study A (the car) and of Study B (BUG2 on the dead end) runs wi
 slower than this machine), beside its ideal loop (``sim=nominal``, scale 0 in the table).
 Study C's scheduled controller runs at 20 ms and at 50 ms with the study's own measured
 microcontroller time (``sim=embedded_stm32``: 33.8 ms at horizon 32), and at 20 ms from our
-generated C with its emulated Cortex-M4 time (``sim=embedded_m4``: 0.574 ms). One process, runs one
-after another, so each solve time is measured on an otherwise idle core.
+generated C with each call's modelled Cortex-M4 time (``sim=embedded_m4``: 0.433 ms a step at
+horizon 32 in double precision). For the real-time iteration (``controller=casadi_rti``) the
+latency is its feedback time, the preparation runs after the input is sent. One process, runs
+one after another, so each solve time is measured on an otherwise idle core.
 
     uv run python experiments/latency/run_latency.py            # results.csv/.md, figure
     uv run python experiments/latency/run_latency.py --only car  # one study
@@ -45,9 +47,10 @@ BACKENDS = {
     "bug2": {
         "fatrop (jit)": ["+experiment=zumo_bug2"],
         "IPOPT": ["+experiment=zumo_bug2", "controller=casadi"],
-        "SQP-RTI 3 it. (truncated)": ["+experiment=zumo_bug2",
-                                      "controller=casadi_sqp_capped",
-                                      "controller.sqp_iterations=3"],
+        "SQP capped at 3 it. (truncated)": ["+experiment=zumo_bug2",
+                                            "controller=casadi_sqp_capped",
+                                            "controller.sqp_iterations=3"],
+        "SQP-RTI, one QP (truncated)": ["+experiment=zumo_bug2", "controller=casadi_rti"],
     },
 }
 #: Study C: label -> overrides (scheduled controller, horizon 32, the turn)
