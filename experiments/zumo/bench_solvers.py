@@ -79,7 +79,7 @@ def candidates() -> dict[str, dict[str, Any]]:
                                   "jit": True}
     c["sqp-qrqp-single-jit"] = {"solver": "sqp", "qp_solver": "qrqp", "shooting": "single",
                                 "jit": True}
-    c["sqp_rti-3-qpoases-single"] = {"solver": "sqp_capped", "qp_solver": "qpoases",
+    c["sqp_capped-3-qpoases-single"] = {"solver": "sqp_capped", "qp_solver": "qpoases",
                                      "shooting": "single", "sqp_iterations": 3}
     return c
 
