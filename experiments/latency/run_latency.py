@@ -135,7 +135,8 @@ def plot(df: pd.DataFrame) -> None:
         ax.text(period, ax.get_ylim()[0], " control period", color="0.4", fontsize=7,
                 va="bottom")
         ax.set_xscale("log")
-        ax.set_xlabel("latency: measured solve time x 1, 10, 100 [ms] (median of the run)")
+        ax.set_xlabel("latency [ms], run median: solve time x 1, 10, 100\n"
+                      "(the RTI: its feedback time)")
         ax.set_ylabel("arrival time [s] (x at the top: did not arrive)")
         ax.set_title({"car": "Study A: car to the origin", "bug2": "Study B: BUG2, dead end"}
                      [study] + " (dotted: ideal loop)", fontsize=10)
