@@ -8,9 +8,9 @@ m-line, BUG2 modes) to ``experiments/zumo/figures/``, and prints the outcomes ta
 stamped with command, commit, CPU and date; ``--md`` also writes it) that
 experiments/zumo/README.md shows. Rows: the three experiments of the study (J1..J4, J1..J5,
 BUG2) on its three layouts; the study's BUG2 formulation (``zumo_bug2_study``); BUG2 on the
-truncated 3-step SQP backend (``rti3``); the study's J4 constants (``study_J4``) where they
-decide the outcome; both BUG2 formulations on the untuned layouts
-(tests/test_zumo_layouts.py); BUG2 and the right-hand rule on random walls.
+truncated 3-step SQP backend (``sqp_capped3``: ``controller=casadi_sqp_capped``); the study's
+J4 constants (``study_J4``) where they decide the outcome; both BUG2 formulations on the
+untuned layouts (tests/test_zumo_layouts.py); BUG2 and the right-hand rule on random walls.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ HERE = Path(__file__).resolve().parent
 
 LAYOUTS = ("zumo_long_wall", "zumo_l_wall", "zumo_cup", "zumo_narrow_gap", "zumo_wide_gap",
            "zumo_goal_near_wall")
-RTI3 = ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"]
+SQP_CAPPED3 = ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"]
 #: the study's J4 (ours: C3 = 1500, L3 = 0.05)
 STUDY_J4 = ["objective.terms.J4.C3=8000", "objective.terms.J4.L3=0.1527"]
 
@@ -40,7 +40,7 @@ RUNS = [
     for scen in ("zumo_one_obstacle", "zumo_wall", "zumo_dead_end")
 ] + [
     ("zumo_bug2_study", "zumo_dead_end", 0, "", []),
-    ("zumo_bug2", "zumo_dead_end", 0, "rti3", RTI3),
+    ("zumo_bug2", "zumo_dead_end", 0, "sqp_capped3", SQP_CAPPED3),
 ] + [
     (exp, scen, 0, "study_J4", STUDY_J4)
     for exp, scen in (("zumo_potential", "zumo_one_obstacle"), ("zumo_potential", "zumo_wall"),
