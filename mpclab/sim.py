@@ -22,7 +22,7 @@ from mpclab.controllers.base import FEEDBACK_KEY, Controller, ControlStep, StepC
 from mpclab.plants.base import Plant
 from mpclab.recording.base import Recorder
 from mpclab.status import SOLVE_KEYS, USABLE, SolveStatus
-from mpclab.stopping import interrupted, stopped_by
+from mpclab.stopping import interrupted, received, stopped_by
 from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.clearance import ContinuousClearance
 from mpclab.world.realism import SimWorld, Timing
@@ -98,6 +98,9 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     try:
         while True:
             t = k * dt
+            if (stop := received()) is not None:  # a stop signal whose interrupt was lost
+                raise stop  # where it was raised (a __del__ the garbage collector ran, a
+                #             native callback that drops errors): taken here, a step late
             if touched or scen.collided(x):  # before arrival: touching on the way fails
                 status = "collision"
                 break

@@ -51,6 +51,48 @@ def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
     assert "interrupted by SIGTERM" in (tmp_path / "console.txt").read_text()
 
 
+#: a recorder whose step sends this process SIGTERM where the interrupt it raises is lost, as
+#: in a ``__del__`` that the garbage collector runs or a native callback that drops errors
+SWALLOWER = """
+import os
+import signal
+import time
+
+from mpclab.recording.base import Recorder
+from mpclab.registry import register_target
+
+
+@register_target
+class Swallower(Recorder):
+    def __init__(self, out_dir):
+        pass
+
+    def log_step(self, k, t, x, step, ctx):
+        if k == 5:
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(1.0)
+            except BaseException:
+                pass
+"""
+
+
+def test_a_stop_lost_where_it_was_raised_still_ends_the_run(tmp_path: Path) -> None:
+    """The stop signal was received: the loop ends the run ``interrupted`` at its next step,
+    whatever became of the interrupt the signal raised."""
+    (tmp_path / "swallower.py").write_text(SWALLOWER)
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mpclab", *LONG_RUN, "scenario.t_max=20", "plugins=[swallower]",
+         "recorder._target_=swallower.Swallower", f"hydra.run.dir={run_dir}"],
+        cwd=ROOT, text=True, env={**os.environ, "PYTHONPATH": str(tmp_path)},
+        stdout=(tmp_path / "console.txt").open("w"), stderr=subprocess.STDOUT)
+    assert proc.wait(timeout=120) == 130, (tmp_path / "console.txt").read_text()[-3000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and "SIGTERM" in summary["error"]
+    assert summary["n_steps"] == 6  # steps 0-5 recorded, the stop taken before step 6
+
+
 #: a recorder (a plugin, as a user's own would be) by which job 6 of a sweep sends SIGTERM at
 #: its fifth step, once (not again when the sweep resumes): the stop lands while that job is
 #: in its loop, the other worker's job wherever it is
