@@ -183,7 +183,7 @@ def sense(run: Run, t: float, x: np.ndarray, measured: np.ndarray | None = None)
         goal=scen.goal,
         target=scen.target(t, ctrl.horizon, ctrl.dt) if target is None else target,
         detections=detections,
-        ranges=ranges, active=active, mode=mode, follow=run.supervisor.follow,
+        ranges=ranges, active=active, mode=mode,
     )
 
 

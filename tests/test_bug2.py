@@ -127,20 +127,21 @@ def test_memory_joins_points_nearer_than_the_link_and_keeps_them() -> None:
     assert mem.labels[ids[0]] == mem.labels[ids[7]] == mem.labels[bridge[0]]
 
 
-def test_the_hit_boundary_is_followed_and_handed_on_as_a_mask() -> None:
+def test_the_hit_boundary_is_the_one_followed() -> None:
     sup = make()
     wall = np.c_[np.linspace(0.3, 0.5, 5), np.full(5, 0.65)]      # across the way, 0.15 ahead
     other = np.array([[0.9, 0.9]])                                 # another obstacle
     det = np.vstack([other, wall])
     assert sup.update(0.0, np.array([0.4, 0.8, 0]), det)[0] == "wall_follow"
-    assert sup.follow.tolist() == [0, 1, 1, 1, 1, 1]
+    assert np.allclose(np.sort(sup.followed(reach=2.0), axis=0), wall, atol=0.01)
     # the next step sees the wall shifted a little and a new far point: still the wall
     moved = np.vstack([wall + [0.01, 0.0], [[0.1, 0.1]]])
     sup.update(0.2, np.array([0.45, 0.8, 0]), moved)
-    assert sup.follow.tolist() == [1, 1, 1, 1, 1, 0]
+    followed = sup.followed(reach=2.0)
+    assert len(followed) >= 5 and np.all(np.abs(followed[:, 1] - 0.65) < 0.01)
     # back to the goal: nothing is followed
     sup.update(4.0, np.array([0.42, 0.5, 0]), NONE)
-    assert sup.mode == "go_to_goal" and sup.follow is None
+    assert sup.mode == "go_to_goal" and len(sup.followed()) == 0
 
 
 def test_the_path_keeps_the_clearance_along_a_wall_and_rounds_its_end() -> None:

@@ -116,7 +116,7 @@ def main() -> None:
         mpc.x0 = states[0]
         mpc.set_initial_guess()
         for k, x in enumerate(states):
-            det, mask, _ = ctrl._pad_detections(x, scen.detect(x))
+            det, mask = ctrl._pad_detections(x, scen.detect(x))
             ctx = StepContext(goal=scen.goal, target=scen.target(0, ctrl.horizon, ctrl.dt),
                               detections=scen.detect(x))
             tvp["_tvp", :, "det"] = det

@@ -65,7 +65,6 @@ from omegaconf import DictConfig, open_dict
 from threadpoolctl import threadpool_limits
 
 from hydra_plugins.mpclab_launcher import recovery
-from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_launcher._worker import (
     THREAD_VARS,
     init_forked,
@@ -73,6 +72,7 @@ from hydra_plugins.mpclab_launcher._worker import (
     init_worker,
     run_one,
 )
+from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.errors import ConfigError, number, parse_choice, whole_number
 from mpclab.registry import register_schema, schema_from_init

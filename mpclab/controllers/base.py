@@ -47,9 +47,6 @@ class StepContext:
         Names of the objective terms the supervisor has switched on (None: all).
     mode
         The supervisor's mode name (for logging).
-    follow
-        ``(n,)``: 1 for a detected point of the boundary the supervisor follows, else 0
-        (None: none followed).
     applied
         The input acting on the plant until this step's input does (None: not known).
     latency_s
@@ -65,7 +62,6 @@ class StepContext:
     ranges: FloatArray = field(default_factory=lambda: np.zeros(0))
     active: frozenset[str] | None = None
     mode: str = ""
-    follow: FloatArray | None = None
     applied: FloatArray | None = None
     latency_s: float = 0.0
     predict: bool = False

@@ -220,7 +220,6 @@ class CasadiMPC(Controller):
         self.objective = objective
         objective.bind(plant, "casadi")
         self.constraints = list(objective.constraints.values())
-        self._follows = any(t.uses_follow for t in objective.terms.values())
         self._slacks = SlackLog()
         self._names = list(objective.terms)
         self._M = max(self.max_detections, 1)
@@ -242,7 +241,7 @@ class CasadiMPC(Controller):
         self.compiled = all(n.compiled for n in (self._full, *self._by_set.values()))
         self._nlp = self._full  # the one the current step solves
         self.step_params = StepParameters(plant, self._names, self.max_detections,
-                                          self.constraints, self._follows)
+                                          self.constraints)
         self.starts = StartingPoints(plant, self.ocp, self.blocking, self.dt, self._u_guess,
                                      self.warm_start, self.constraints, self._detections)
         self._lam_x: FloatArray | None = None
@@ -297,16 +296,12 @@ class CasadiMPC(Controller):
         nlp = nlp or self._full
         return self.step_params.vector(nlp.ocp, nlp.names, x, ctx, self.previous_input)
 
-    def _pad_detections(
-        self, x: FloatArray, det: FloatArray, follow: Any = None,
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Detections ``(2, M)``, their mask and the followed points' mask ``(M,)``."""
-        return self.step_params.detections(x, det, follow)
+    def _pad_detections(self, x: FloatArray, det: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Detections ``(2, M)`` and their mask ``(M,)``."""
+        return self.step_params.detections(x, det)
 
     def _detections(self, x: FloatArray, ctx: StepContext) -> tuple[FloatArray, FloatArray]:
-        det, mask, _ = self._pad_detections(x, np.asarray(ctx.detections, dtype=float),
-                                            getattr(ctx, "follow", None))
-        return det, mask
+        return self._pad_detections(x, np.asarray(ctx.detections, dtype=float))
 
     def _initial_guess(self, x: FloatArray, ctx: StepContext | None = None,
                        ) -> tuple[FloatArray, bool]:

@@ -39,25 +39,21 @@ class StepParameters:
         The detected points the NLP has room for.
     constraints
         The objective's constraints (each fills its own parameters).
-    follows
-        Whether a term reads the followed points' mask.
     """
 
     def __init__(self, plant: Plant, names: Sequence[str], max_detections: int,
-                 constraints: Sequence[Constraint], follows: bool) -> None:
+                 constraints: Sequence[Constraint]) -> None:
         self.plant, self.names, self.max_detections = plant, list(names), max_detections
-        self.constraints, self.follows = list(constraints), follows
+        self.constraints = list(constraints)
 
-    def detections(self, x: FloatArray, det: FloatArray, follow: Any = None,
-                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Detections ``(2, M)``, their mask and the followed points' mask ``(M,)``."""
-        return pad_detections(self.plant, x, det, self.max_detections, follow)
+    def detections(self, x: FloatArray, det: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Detections ``(2, M)`` and their mask ``(M,)``."""
+        return pad_detections(self.plant, x, det, self.max_detections)
 
     def vector(self, ocp: OCP, names: Sequence[str], x: FloatArray, ctx: StepContext,
                u_prev: FloatArray) -> FloatArray:
         """The parameters of ``ocp`` (the NLP of the terms ``names``) at state ``x``."""
-        det, mask, follow = self.detections(
-            x, np.asarray(ctx.detections, dtype=float), getattr(ctx, "follow", None))
+        det, mask = self.detections(x, np.asarray(ctx.detections, dtype=float))
         act = np.ones(len(names))
         if ctx.active is not None:
             unknown = set(ctx.active) - set(self.names)
@@ -72,8 +68,6 @@ class StepParameters:
             "target": np.asarray(ctx.target, dtype=float).T, "detections": det, "mask": mask,
             "active": act, "u_prev": u_prev,
         }
-        if self.follows:
-            values["follow"] = follow
         for c in self.constraints:
             values |= c.values(x, det, mask)
         return ocp.params.pack(**values)

@@ -137,8 +137,6 @@ def build_ocp(
     mask = P.add("mask", M)
     active = P.add("active", len(term_names))
     u_prev = P.add("u_prev", nu)
-    follows = any(t.uses_follow for t in objective.terms.values())
-    follow = P.add("follow", M) if follows else None
     cpar = [c.declare(P, M) for c in constraints]  # each constraint's own parameters
     soft = [c for c in constraints if c.soft]
     Sl = {k: ca.SX.sym(f"slack{k}", len(soft)) for k in range(1, T + 1)} if soft else {}
@@ -156,8 +154,7 @@ def build_ocp(
     # the input each step applies: its block's move, held as the state s_k when lifted
     Us = [Vs[move_of[k]] if k in starts or not lift else Ss[k] for k in range(T)]
     ctx = TermContext(x0=x0, target=target, u_prev=u_prev, goal=goal, detections=det,
-                      mask=mask, u_before=ca.horzcat(*Ss[:T]) if lift else None,
-                      follow=follow)
+                      mask=mask, u_before=ca.horzcat(*Ss[:T]) if lift else None)
     g: list[ca.SX] = []
     lbg: list[np.ndarray] = []
     ubg: list[np.ndarray] = []

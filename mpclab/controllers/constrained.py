@@ -22,27 +22,23 @@ GAVE_WAY = 1e-6
 
 
 def pad_detections(
-    plant: Plant, x: FloatArray, det: Any, max_detections: int, follow: Any = None,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Detections ``(2, M)`` (``M = max(max_detections, 1)``), their mask and the followed
-    points' mask ``(M,)``: more than ``max_detections`` points are cut to the nearest, the
-    rest is padding far away (mask 0)."""
+    plant: Plant, x: FloatArray, det: Any, max_detections: int,
+) -> tuple[FloatArray, FloatArray]:
+    """Detections ``(2, M)`` (``M = max(max_detections, 1)``) and their mask ``(M,)``: more
+    than ``max_detections`` points are cut to the nearest, the rest is padding far away
+    (mask 0)."""
     M = max(max_detections, 1)
     ix, iy = (plant.state_index(s) for s in plant.position)
     pos = np.array([x[ix], x[iy]])
     det = np.asarray(det, dtype=float).reshape(-1, 2)
-    fol = np.zeros(len(det)) if follow is None else np.asarray(follow, dtype=float)
-    if fol.shape != (len(det),):
-        raise ValueError(f"follow mask of shape {fol.shape} for {len(det)} detections")
     if len(det) > max_detections:  # keep the nearest
         order = np.argsort(np.linalg.norm(det - pos, axis=1))[:max_detections]
-        det, fol = det[order], fol[order]
+        det = det[order]
     out = np.tile(pos + 1e3, (M, 1))  # padding far away, masked out anyway
     out[: len(det)] = det
-    mask, fmask = np.zeros(M), np.zeros(M)
+    mask = np.zeros(M)
     mask[: len(det)] = 1.0
-    fmask[: len(det)] = fol
-    return out.T, mask, fmask
+    return out.T, mask
 
 
 class SlackLog:

@@ -86,7 +86,7 @@ class QPConstraints:
         self.log = SlackLog()
         self._x0 = np.zeros(plant.nx)
         self._det, self._mask = pad_detections(plant, self._x0, np.zeros((0, 2)),
-                                               max_detections)[:2]
+                                               max_detections)
 
     def __bool__(self) -> bool:
         return bool(self.constraints)
@@ -103,7 +103,7 @@ class QPConstraints:
     def at_step(self, x: FloatArray, detections: Any) -> None:
         """Keep this step's measured state and detections ``(n, 2)`` (padded)."""
         self._x0 = np.asarray(x, dtype=float)
-        self._det, self._mask, _ = pad_detections(self.plant, self._x0, detections,
+        self._det, self._mask = pad_detections(self.plant, self._x0, detections,
                                                   self.max_detections)
 
     def linearize(self, X: FloatArray) -> None:

@@ -47,9 +47,6 @@ class TermContext:
         own ``u_0 .. u_{T-2}``. None: a term builds it from ``u_prev`` and ``U``. A
         stage-structured NLP (fatrop) gives lifted variables here, so that a term using it
         stays local to each stage.
-    follow
-        ``(M,)``: 1 for a detected point of the boundary being followed (a supervisor's
-        choice), else 0. None where the backend does not provide it.
     """
 
     x0: Any
@@ -59,7 +56,6 @@ class TermContext:
     detections: Any = None
     mask: Any = None
     u_before: Any = None
-    follow: Any = None
 
 
 class Term(Expressible):
@@ -70,8 +66,6 @@ class Term(Expressible):
 
     #: whether the term reads ``TermContext.u_before`` (couples each step to the one before)
     uses_input_before: bool = False
-    #: whether the term reads ``TermContext.follow`` (the followed boundary's points)
-    uses_follow: bool = False
 
     def bind(self, plant: Any) -> None:
         """Resolve state/input labels against ``plant``; called once by the backend."""

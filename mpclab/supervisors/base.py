@@ -13,12 +13,8 @@ FloatArray = npt.NDArray[np.float64]
 class Supervisor:
     """Base class: chooses a mode and the objective terms active in it.
 
-    ``follow`` is, after :meth:`update`, the mask ``(n,)`` of the detections that form the
-    boundary being followed (None: none), handed to the controller with the step.
     :meth:`target` may replace the scenario's reference over the horizon for a step.
     """
-
-    follow: FloatArray | None = None
 
     def reset(self, x0: FloatArray, goal: FloatArray) -> None:
         """Start a new run."""

@@ -165,7 +165,6 @@ class Bug2(Supervisor):
         self.memory = ObstacleMemory(self.run_link)
         self._member: int | None = None  # a point of the obstacle followed
         self._path: FloatArray | None = None  # the last path handed on by target
-        self.follow = None
 
     def update(
         self, t: float, x: FloatArray, detections: FloatArray
@@ -190,10 +189,6 @@ class Bug2(Supervisor):
             self.hit_point = None
             self._member = None
             self._progress.clear()
-        if self._member is not None:
-            self.follow = self.memory.obstacle(self._member)[ids].astype(float)
-        else:
-            self.follow = None
         self._last = p
         self._heading = None if self._ith is None else float(np.asarray(x)[self._ith])
         return self.mode.value, self.modes[self.mode]

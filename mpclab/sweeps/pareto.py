@@ -156,8 +156,8 @@ def plot_pareto(points: pd.DataFrame, path: Path, title: str = "sweep", dpi: int
     key_lines = []
     for i, (_, r) in enumerate(on.iterrows(), start=1):  # alternately above and below
         _annotate(ax, str(i), r[xcol], r[ycol], 5 if i % 2 else -11, "k")
-        key_lines.append(f"{i}: {point_label(r, keys)}"
-                         + (" (knee)" if r["knee"] else "") + (" (default)" if r["default"] else ""))
+        marks = (" (knee)" if r["knee"] else "") + (" (default)" if r["default"] else "")
+        key_lines.append(f"{i}: {point_label(r, keys)}{marks}")
     for _, r in points[points["default"] & ~points["front"]].iterrows():  # named, off the front
         _annotate(ax, "D", r[xcol], r[ycol], 7, "tab:blue")
         key_lines.append(f"D: {point_label(r, keys)} (default, off the front)")

@@ -16,8 +16,8 @@ every seed arrived, none collided or failed, and none missed a deadline (runs un
 ``sim.latency``). The **front** is the feasible points that no feasible point dominates (at
 most as large in every objective and smaller in one, where values within
 :data:`TIE_TOLERANCE` of each other count as equal: two builds that track alike to 1e-5 m
-are not told apart by their tracking, only by their compute). The **knee** is the front point nearest
-the ideal one (every objective at its best on the front), the objectives scaled to [0, 1]
+are not told apart by their tracking, only by their compute). The **knee** is the front point
+nearest the ideal one (every objective at its best on the front), the objectives scaled to [0, 1]
 over the front. The **default** is the point of the values the sweep's base config gives
 the varied parameters (the configuration that ships), when the sweep has one.
 """
