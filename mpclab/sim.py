@@ -87,7 +87,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     world.reset(plant.nu)
     x = scen.x0.copy()  # the true state
     ctrl.reset(x)
-    sup.reset(x, scen.goal)
+    sup.reset(x, scen.goal, scen.arrived)
     board_time = world.board_time(ctrl)  # sim.latency=modelled: the controller's model
     log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world, dt)
     # the closest approach between samples, along the path the simulated plant drives

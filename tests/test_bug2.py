@@ -230,3 +230,22 @@ def test_a_pocket_whose_way_out_is_narrow_is_left_at_a_lower_clearance() -> None
                             heading=heading)
         inner = (np.abs(mouth[1:, :2] - 0.15) < 0.15).all(axis=1)
         assert not inner.any()
+
+
+def within_5cm(x: np.ndarray) -> bool:
+    return bool(np.hypot(x[0] - 0.4, x[1] - 0.4) < 0.05)
+
+
+@pytest.mark.parametrize(("where", "arrived", "stuck"), [
+    ((0.4, 0.6), None, True),          # no progress beside a wall: stuck
+    ((0.4, 0.6), within_5cm, True),    # ... and still, 20 cm from the goal
+    ((0.4, 0.43), None, True),         # without an arrival rule the goal is not known
+    ((0.4, 0.43), within_5cm, False),  # where it measures the goal: not stuck, it is there
+])
+def test_a_robot_at_its_measured_goal_is_not_stuck(where, arrived, stuck) -> None:
+    sup = Bug2(Zumo(), block_range=0.2, corridor_half_width=0.08, stuck_window=1.0)
+    sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]), arrived)
+    x = np.array([*where, -np.pi / 2])
+    beside = np.array([[x[0] + 0.15, x[1]]])  # near, out of the corridor toward the goal
+    modes = [sup.update(0.2 * k, x, beside)[0] for k in range(8)]
+    assert (modes[-1] == "wall_follow") is stuck

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
 from mpclab.registry import component
 
 FloatArray = npt.NDArray[np.float64]
+#: the scenario's arrival rule: whether a state is at the goal
+Arrival = Callable[[FloatArray], bool]
 
 
 class Supervisor:
@@ -16,8 +20,9 @@ class Supervisor:
     :meth:`target` may replace the scenario's reference over the horizon for a step.
     """
 
-    def reset(self, x0: FloatArray, goal: FloatArray) -> None:
-        """Start a new run."""
+    def reset(self, x0: FloatArray, goal: FloatArray, arrived: Arrival | None = None) -> None:
+        """Start a new run toward ``goal``; ``arrived`` is the scenario's arrival rule (the
+        loop ends a run on the true state meeting it; a supervisor sees measured states)."""
 
     def update(
         self, t: float, x: FloatArray, detections: FloatArray

@@ -14,9 +14,8 @@ Which terms each mode switches on is configuration, not code.
 The boundary followed is the obstacle that was hit: every detected point is remembered in
 the world frame, and points less than ``run_link`` apart (a gap the robot cannot pass) are
 one obstacle (:class:`~mpclab.supervisors.boundary.ObstacleMemory`); the obstacle of the
-blocking point is the one followed, and the mask of this step's detections on it is
-:attr:`follow`, which the controller hands to a wall-following term. With ``path_speed > 0``
-the supervisor follows the boundary itself: in ``wall_follow`` the controller's reference
+blocking point is the one followed (:meth:`followed`). With ``path_speed > 0`` the
+supervisor follows the boundary itself: in ``wall_follow`` the controller's reference
 over the horizon (:meth:`target`) is the path along the followed obstacle at ``clearance``
 (:mod:`mpclab.supervisors.boundary`) sampled at ``path_speed``, for a tracking term.
 
@@ -24,7 +23,10 @@ A way can be blocked where no detected point lies in the corridor toward the goa
 obstacles either side of it, closer together than the robot with its margin): with
 ``stuck_window > 0``, a robot in ``go_to_goal`` that has come less than ``stuck_progress``
 nearer the goal over that window, with an obstacle detected within ``block_range``, counts
-as having hit the obstacle nearest to it.
+as having hit the obstacle nearest to it. A robot whose measured state meets the scenario's
+arrival rule is never stuck: it makes no progress because it is where it thinks the goal is
+(a drifting estimate can put it there short of the true goal; the run then stalls there
+rather than setting off along a wall).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from mpclab.errors import ConfigError, number, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.registry import component
-from mpclab.supervisors.base import FloatArray, Supervisor
+from mpclab.supervisors.base import Arrival, FloatArray, Supervisor
 from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
 
 
@@ -149,8 +151,10 @@ class Bug2(Supervisor):
         #: (t, x, y) of every switch into wall_follow
         self.hits: list[tuple[float, float, float]] = []
         self._last: FloatArray | None = None
+        self._arrived: Arrival | None = None
 
-    def reset(self, x0: FloatArray, goal: FloatArray) -> None:
+    def reset(self, x0: FloatArray, goal: FloatArray, arrived: Arrival | None = None) -> None:
+        self._arrived = arrived
         s = np.asarray(x0, dtype=float)[self._ip]
         g = np.asarray(goal, dtype=float)[self._ip]
         self.mline = ((float(s[0]), float(s[1])), (float(g[0]), float(g[1])))
@@ -176,7 +180,7 @@ class Bug2(Supervisor):
         ids = self.memory.add(det)
         if self.mode is Bug2Mode.go_to_goal:
             block = self.blocking(p, det)
-            if not len(block) and self.stuck(t, p, det):
+            if not len(block) and self.stuck(t, p, det) and not self.at_goal(x):
                 block = np.arange(len(det))
             if len(block):
                 self.mode = Bug2Mode.wall_follow
@@ -192,6 +196,11 @@ class Bug2(Supervisor):
         self._last = p
         self._heading = None if self._ith is None else float(np.asarray(x)[self._ith])
         return self.mode.value, self.modes[self.mode]
+
+    def at_goal(self, x: FloatArray) -> bool:
+        """Whether the state ``x`` (as measured) meets the arrival rule given to :meth:`reset`
+        (False without one)."""
+        return self._arrived is not None and bool(self._arrived(np.asarray(x, dtype=float)))
 
     def followed(self, reach: float = 0.6) -> FloatArray:
         """``(n, 2)``: the remembered points of the obstacle followed within ``reach`` of
