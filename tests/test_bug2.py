@@ -249,3 +249,13 @@ def test_a_robot_at_its_measured_goal_is_not_stuck(where, arrived, stuck) -> Non
     beside = np.array([[x[0] + 0.15, x[1]]])  # near, out of the corridor toward the goal
     modes = [sup.update(0.2 * k, x, beside)[0] for k in range(8)]
     assert (modes[-1] == "wall_follow") is stuck
+
+
+def test_a_robot_at_its_measured_goal_leaves_the_wall() -> None:
+    sup = Bug2(Zumo(), block_range=0.2, corridor_half_width=0.08, mline_tolerance=0.03)
+    sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]), within_5cm)
+    wall = np.c_[np.linspace(0.3, 0.5, 5), np.full(5, 0.65)]
+    assert sup.update(0.0, np.array([0.4, 0.8, 0.0]), wall)[0] == "wall_follow"
+    off_mline = np.array([0.445, 0.41, 0.0])  # 4.5 cm off the m-line, beside the goal
+    assert not sup.can_leave(off_mline[:2])
+    assert sup.update(0.2, off_mline, wall)[0] == "go_to_goal"

@@ -24,9 +24,9 @@ obstacles either side of it, closer together than the robot with its margin): wi
 ``stuck_window > 0``, a robot in ``go_to_goal`` that has come less than ``stuck_progress``
 nearer the goal over that window, with an obstacle detected within ``block_range``, counts
 as having hit the obstacle nearest to it. A robot whose measured state meets the scenario's
-arrival rule is never stuck: it makes no progress because it is where it thinks the goal is
-(a drifting estimate can put it there short of the true goal; the run then stalls there
-rather than setting off along a wall).
+arrival rule is where it thinks the goal is: it leaves ``wall_follow``, and it is never
+stuck (it makes no progress because it is there). A drifting estimate can put it there
+short of the true goal; the run then stalls there rather than following walls on.
 """
 
 from __future__ import annotations
@@ -188,7 +188,7 @@ class Bug2(Supervisor):
                 self.hits.append((float(t), float(p[0]), float(p[1])))
                 self._member = int(ids[block[np.argmin(np.linalg.norm(det[block] - p, axis=1))]])
                 self._path = None
-        elif self.can_leave(p, self._last) or self.goal_in_sight(p, det):
+        elif self.at_goal(x) or self.can_leave(p, self._last) or self.goal_in_sight(p, det):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
             self._member = None
