@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 
 from mpclab import record
 from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
 from mpclab.controllers.casadi import CasadiMPC, read_status
+from mpclab.controllers.casadi_solvers import CALL_FAILED
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
@@ -151,3 +153,26 @@ def test_the_record_says_what_problem_converged_means(run_cfg, overrides, proble
     assert s["status"] != "error", s["error"]
     assert s[PROBLEM_KEY] == problem.value
     assert Problem(s[PROBLEM_KEY]) is problem
+
+
+def test_a_call_that_ends_in_an_error_is_failed_whatever_status_it_left() -> None:
+    """sqpmethod returns an error without writing a status when its Hessian has a NaN: the
+    return string is the previous call's (here an iteration cap), the call is failed."""
+    x = ca.SX.sym("x", 2)
+    f = (x[0] - 1) ** 2 + x[1] ** 2 + ca.fabs(x[1]) ** 1.5  # Hessian NaN at x[1] = 0
+    quiet = {"print_time": False, "print_header": False, "print_iteration": False,
+             "print_status": False}
+    solver = ca.nlpsol("s", "sqpmethod", {"x": x, "f": f}, {
+        "max_iter": 1, "qpsol": "qrqp", **quiet,
+        "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False}})
+    buffer, trigger = solver.buffer()
+    x0, x_out = np.array([0.5, 1.0]), np.zeros(2)
+    buffer.set_arg(0, memoryview(x0))
+    buffer.set_res(0, memoryview(x_out))
+    trigger()
+    assert read_status(buffer)[:2] == (SolveStatus.truncated, "Maximum_Iterations_Exceeded")
+    x0[:] = [0.5, 0.0]
+    trigger()
+    assert buffer.stats()["return_status"] == "Maximum_Iterations_Exceeded"  # left over
+    status, raw, _ = read_status(buffer)
+    assert status is SolveStatus.failed and raw.startswith(CALL_FAILED)

@@ -53,6 +53,8 @@ _TRUNCATED = frozenset({
     "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
     "Maximum_WallTime_Exceeded",
 })
+#: the return string of a solver call that returned an error code (see :func:`read_status`)
+CALL_FAILED = "call_failed"
 #: fatrop's numeric return codes (its ``return_status``) for a cap: 1 is MaxIterExceeded
 _FATROP_TRUNCATED = frozenset({"1"})
 #: CasADi's unified return status -> ours (``SOLVER_RET_SUCCESS`` is refined by _TRUNCATED)
@@ -69,9 +71,13 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
     """What an ``nlpsol`` did in its last call: ``(status, return string, iterations)``.
 
     ``stats()`` raises for some plugins when they stop without a status string (sqpmethod
-    after a failed QP); that is a failed solve, not a crash. IPOPT's "acceptable" level and
-    an iteration cap count as truncated; fatrop's ``return_status`` is a number: 0 with its
-    ``success`` flag is converged, 1 its iteration cap (truncated), others failed.
+    after a failed QP); that is a failed solve, not a crash. A buffer's call that returned
+    an error code is failed too (:data:`CALL_FAILED`): sqpmethod returns one when an
+    evaluation (a NaN in the Hessian) or the Hessian's convexification fails, without
+    writing a status, so that ``return_status`` still holds the previous call's (an
+    iteration cap, a stop on time) and would otherwise pass for it. IPOPT's "acceptable"
+    level and an iteration cap count as truncated; fatrop's ``return_status`` is a number: 0
+    with its ``success`` flag is converged, 1 its iteration cap (truncated), others failed.
     """
     try:
         stats = fn.stats()
@@ -80,6 +86,9 @@ def read_status(fn: ca.Function) -> tuple[SolveStatus, str, int | None]:
     raw = str(stats.get("return_status", ""))
     iters = stats.get("iter_count")
     iters = int(iters) if iters is not None else None
+    returned = getattr(fn, "ret", None)  # a buffer's: the call's own return code
+    if returned is not None and returned() != 0:
+        return SolveStatus.failed, f"{CALL_FAILED} (return_status, maybe stale: {raw})", iters
     if raw in _TRUNCATED or raw in _FATROP_TRUNCATED:
         return SolveStatus.truncated, raw, iters
     if stats.get("success"):

@@ -9,11 +9,10 @@ solve overruns its cap by at most one iteration. It reads no argument (CasADi's 
 evaluation: the iterate is not converted), so it costs a clock read per iteration.
 
 A stop is read by :meth:`Deadline.status`: ``truncated`` (``User_Requested_Stop:time_cap``).
-Under tight caps on the Zumo NLP sqpmethod also reported ``User_Requested_Stop`` a few times
-per run after every callback call had answered "go on" (measured: 1 to 4 of about 60 solves;
-never with a cap it does not reach); its iterate is the SQP iterate of an iteration boundary
-as a stop on time is, so it is ``truncated`` too, its return string saying
-``User_Requested_Stop:unrequested``.
+A ``User_Requested_Stop`` the callback did not ask for is ``failed``: sqpmethod leaves its
+previous call's status in place when a call ends in an error (a failed convexification of the
+Hessian, seen a few times a run on the Zumo NLP after a stop on time), which
+:func:`~mpclab.controllers.casadi_solvers.read_status` finds by the call's return code first.
 
 IPOPT takes its own cap (``max_wall_time``, :func:`~mpclab.controllers.casadi_solvers.
 nlpsol_options`); fatrop has neither a time limit nor an iteration callback.
@@ -61,7 +60,9 @@ class Deadline(ca.Callback):
     def status(self, raw: str) -> tuple[SolveStatus, str]:
         """The status of a solve that ended in ``raw = "User_Requested_Stop"`` (module
         docstring)."""
-        return SolveStatus.truncated, f"{raw}:{TIME_CAP if self.fired else 'unrequested'}"
+        if self.fired:
+            return SolveStatus.truncated, f"{raw}:{TIME_CAP}"
+        return SolveStatus.failed, f"{raw}:unrequested"
 
     # CasADi's callback interface -------------------------------------------------------
     def get_n_in(self) -> int:
