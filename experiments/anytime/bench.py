@@ -156,7 +156,7 @@ def capped(name: str, label: str, overrides: list[str], cap_ms: float) -> dict[s
     ms = steps["solve_time_s"].to_numpy(float) * 1e3
     later = steps.iloc[1:]  # the first call also builds the solver's memory
     over = later["solve_time_s"].to_numpy(float) * 1e3 - cap_ms
-    stopped = steps["solver_status"].astype(str).str.contains("WallTime|time_cap|unrequested")
+    stopped = steps["solver_status"].astype(str).str.contains("WallTime|time_cap")
     return {
         "experiment": name, "controller": label, "cap_ms": cap_ms, "status": s["status"],
         "steps": s["n_steps"], "stopped_by_cap": int(stopped.sum()),
