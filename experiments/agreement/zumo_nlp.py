@@ -64,7 +64,7 @@ from mpclab.status import SolveStatus  # noqa: E402
 BACKENDS: dict[str, list[str]] = {
     "fatrop": ["controller=casadi_fatrop"],
     "ipopt": ["controller=casadi"],
-    "rti": ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
+    "sqp_capped3": ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
 }
 NN_WEIGHTS = ROOT / "experiments/zumo_nn/weights.npz"
 QUIET = ["recorder=none", "progress=false", "figures.enabled=false", "sim=nominal"]
