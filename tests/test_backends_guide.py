@@ -55,3 +55,9 @@ def test_docs_quote_the_table_the_guide_wrote() -> None:
     table = (ROOT / "experiments" / "backends" / "results.md").read_text().strip()
     assert table.splitlines()[-1].startswith("`uv run python experiments/backends/guide.py")
     assert table in (ROOT / "docs" / "backends.md").read_text()
+
+
+def test_every_zumo_nlp_backend_has_a_row_label() -> None:
+    """The Zumo gaps are read by zumo_nlp's labels: a renamed backend there must not lose
+    its gap here."""
+    assert set(guide.zumo_nlp.BACKENDS) | {"nn"} == set(guide.ZUMO_LABELS)

@@ -121,7 +121,7 @@ CASES = [
 
 #: zumo_nlp's backend labels -> this guide's
 ZUMO_LABELS = {"fatrop": "casadi_fatrop", "ipopt": "casadi",
-               "rti": "casadi_sqp_capped (3 SQP steps)", "nn": "nn"}
+               "sqp_capped3": "casadi_sqp_capped (3 SQP steps)", "nn": "nn"}
 
 
 def closed_loops(case: PlantCase, label: str) -> dict[str, Any]:
