@@ -46,7 +46,7 @@ def test_markdown_row_says_what_was_measured() -> None:
     text = guide.markdown(pd.DataFrame([row]))
     header, rule, line = text.splitlines()
     assert header.count("|") == rule.count("|") == line.count("|")
-    assert "| unicycle | casadi | nonlinear |" in line and "1 of 1" in line
+    assert "| unicycle | casadi | nonlinear |" in line and "1 of 1 | 0 |" in line
 
 
 @pytest.mark.skipif(not (ROOT / "experiments" / "backends" / "results.md").exists(),

@@ -8,7 +8,7 @@ compiled) before its timed runs. Per backend, over the controller calls of all i
 the fraction whose status is ``converged``, the median and p95 of the wall time of
 ``controller.step`` and the median of its CPU time (``solve_cpu_s``: on a machine shared with
 other work the wall time includes waits for a core, the CPU time does not), and how many runs
-arrived. The cost gap to the tight IPOPT reference comes from experiments/agreement (its
+arrived and how many touched an obstacle. The cost gap to the tight IPOPT reference comes from experiments/agreement (its
 ``compare`` for the car, the bicycle and the unicycle, cold-started at a few states of one
 closed loop; ``zumo_nlp.compare`` for the Zumo's NLP as BUG2 poses it). Generated-C and
 Cortex-M4 figures are not measured here: they are read from the stamped results of
@@ -144,6 +144,7 @@ def closed_loops(case: PlantCase, label: str) -> dict[str, Any]:
     return {
         "plant": case.plant, "backend": label, "task": task, "problem": problem,
         "runs": len(runs), "arrived": len(arrived),
+        "collisions": sum(s["status"] == "collision" for s in summaries),
         "arrival_median_s": float(np.median(arrived)) if arrived else None,
         "steps": len(steps),
         "converged": float((steps["status"] == "converged").mean()),
@@ -200,7 +201,8 @@ def generated_c() -> dict[tuple[str, str], str]:
 
 
 def markdown(df: pd.DataFrame) -> str:
-    head = ("| plant | backend | solves | task | runs arrived | arrival median s | converged "
+    head = ("| plant | backend | solves | task | runs arrived | collided | arrival median s "
+            "| converged "
             "| median ms | p95 ms | CPU median ms | gap median | gap max (states) | "
             "generated C, Cortex-M4 |")
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
@@ -213,7 +215,7 @@ def markdown(df: pd.DataFrame) -> str:
                                          if not pd.isna(r.gap_states) else "")
         lines.append(
             f"| {r.plant} | {r.backend} | {r.problem} | {r.task} | {r.arrived} of {r.runs} | "
-            f"{f(r.arrival_median_s, '.1f')} | {r.converged:.2f} | {r.median_ms:.3g} | "
+            f"{r.collisions} | {f(r.arrival_median_s, '.1f')} | {r.converged:.2f} | {r.median_ms:.3g} | "
             f"{r.p95_ms:.3g} | {r.cpu_median_ms:.3g} | {f(r.gap_median, '.2g')} | {gap_max} | "
             f"{'-' if pd.isna(r.generated_c) else r.generated_c} |")
     return "\n".join(lines)
