@@ -8,10 +8,10 @@ compiled) before its timed runs. Per backend, over the controller calls of all i
 the fraction whose status is ``converged``, the median and p95 of the wall time of
 ``controller.step`` and the median of its CPU time (``solve_cpu_s``: on a machine shared with
 other work the wall time includes waits for a core, the CPU time does not), and how many runs
-arrived and how many touched an obstacle. The cost gap to the tight IPOPT reference comes from experiments/agreement (its
-``compare`` for the car, the bicycle and the unicycle, cold-started at a few states of one
-closed loop; ``zumo_nlp.compare`` for the Zumo's NLP as BUG2 poses it). Generated-C and
-Cortex-M4 figures are not measured here: they are read from the stamped results of
+arrived and how many touched an obstacle. The cost gap to the tight IPOPT reference comes
+from experiments/agreement (its ``compare`` for the car, the bicycle and the unicycle,
+cold-started at a few states of one closed loop; ``zumo_nlp.compare`` for the Zumo's NLP as
+BUG2 poses it). Generated-C and Cortex-M4 figures are not measured here: they are read from the stamped results of
 experiments/embedded and experiments/zumo_nn, and the table names the file.
 """
 
@@ -215,8 +215,9 @@ def markdown(df: pd.DataFrame) -> str:
                                          if not pd.isna(r.gap_states) else "")
         lines.append(
             f"| {r.plant} | {r.backend} | {r.problem} | {r.task} | {r.arrived} of {r.runs} | "
-            f"{r.collisions} | {f(r.arrival_median_s, '.1f')} | {r.converged:.2f} | {r.median_ms:.3g} | "
-            f"{r.p95_ms:.3g} | {r.cpu_median_ms:.3g} | {f(r.gap_median, '.2g')} | {gap_max} | "
+            f"{r.collisions} | {f(r.arrival_median_s, '.1f')} | {r.converged:.2f} | "
+            f"{r.median_ms:.3g} | {r.p95_ms:.3g} | {r.cpu_median_ms:.3g} | "
+            f"{f(r.gap_median, '.2g')} | {gap_max} | "
             f"{'-' if pd.isna(r.generated_c) else r.generated_c} |")
     return "\n".join(lines)
 
