@@ -11,8 +11,9 @@ other work the wall time includes waits for a core, the CPU time does not), and 
 arrived and how many touched an obstacle. The cost gap to the tight IPOPT reference comes
 from experiments/agreement (its ``compare`` for the car, the bicycle and the unicycle,
 cold-started at a few states of one closed loop; ``zumo_nlp.compare`` for the Zumo's NLP as
-BUG2 poses it). Generated-C and Cortex-M4 figures are not measured here: they are read from the stamped results of
-experiments/embedded and experiments/zumo_nn, and the table names the file.
+BUG2 poses it). Generated-C and Cortex-M4 figures are not measured here: they are read from
+the stamped results of experiments/embedded and experiments/zumo_nn, and the table names the
+file.
 """
 
 from __future__ import annotations
