@@ -1,7 +1,15 @@
-"""Shared fixtures: compose configs exactly as the app does, and run them into tmp folders."""
+"""Shared fixtures: compose configs exactly as the app does, and run them into tmp folders.
+
+A test that needs something beyond ``uv run pytest``'s environment (an extra, a toolchain)
+is marked ``@pytest.mark.needs("ray")`` (a name of :data:`SETUPS`): where that is missing it is
+skipped with the command that provides it; where ``MPCLAB_REQUIRE`` names it (``.ci/run``'s
+second stage, after installing it) a missing one fails the test instead.
+"""
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import subprocess
 import time
 from collections.abc import Callable, Sequence
@@ -9,10 +17,52 @@ from pathlib import Path
 
 import pytest
 
+from mpclab.codegen.pil import missing_tools
 from mpclab.experiment import CONF_DIR as CONF
 from mpclab.experiment import compose as compose_cfg  # the config the app runs with
 
 ROOT = CONF.parent
+
+#: PIL's cross compiler, its C library and the emulator (Debian's packages)
+PIL_PACKAGES = "gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
+
+
+def _have_ray() -> bool:
+    return all(importlib.util.find_spec(m) for m in ("ray", "hydra_plugins.hydra_ray_launcher"))
+
+
+#: what a ``needs`` marker may name: (is it here?, what is missing, the command that adds it)
+SETUPS: dict[str, tuple[Callable[[], bool], str, str]] = {
+    "ray": (_have_ray, "the `ray` extra (Hydra's Ray launcher)", "uv sync --extra ray"),
+    "pil": (lambda: not missing_tools(), "the Cortex-M4 toolchain and emulator",
+            f"sudo apt-get install {PIL_PACKAGES}"),
+}
+REQUIRE_ENV = "MPCLAB_REQUIRE"
+
+# The suite starts many `python -m mpclab` processes. Where PYTHONDONTWRITEBYTECODE is set
+# (CI machines often set it), each would compile every import from source (about 1.5 s of
+# start-up); the suite's own processes may write bytecode into the project's environment once.
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "needs(name): needs an extra or a toolchain (tests/conftest.py SETUPS)")
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    required = {n for n in os.environ.get(REQUIRE_ENV, "").split(",") if n}
+    for marker in item.iter_markers("needs"):
+        for name in marker.args:
+            if name not in SETUPS:
+                raise ValueError(f"needs({name!r}): not one of {', '.join(SETUPS)}")
+            present, what, command = SETUPS[name]
+            if present():
+                continue
+            message = f"needs {what}: `{command}`"
+            if name in required:
+                pytest.fail(f"{REQUIRE_ENV} names {name!r} but it is missing: {message}")
+            pytest.skip(message)
 
 
 @pytest.fixture

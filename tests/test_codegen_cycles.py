@@ -20,8 +20,7 @@ from mpclab.errors import ConfigError
 from mpclab.experiment import build_run
 from mpclab.sim import simulate
 
-MISSING = pil.missing_tools()
-needs_toolchain = pytest.mark.skipif(bool(MISSING), reason=f"needs {', '.join(MISSING)}")
+needs_toolchain = pytest.mark.needs("pil")
 
 #: address -> (size, mnemonic, operands): a loop of 3 passes, loads and stores, the FPU
 TABLE = {

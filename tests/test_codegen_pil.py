@@ -1,8 +1,9 @@
 """PIL: the scheduled controller's generated C on an emulated Cortex-M4F (QEMU netduinoplus2).
 
 Needs Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (``.ci/run``
-installs them); skipped, naming what is missing, without them. About 5 s. The board folder of
-``python -m mpclab.codegen.export`` is built with its own Makefile and run the same way.
+installs them); where they are missing, skipped with the command that installs them. About
+5 s. The board folder of ``python -m mpclab.codegen.export`` is built with its own Makefile and
+run the same way.
 """
 
 from __future__ import annotations
@@ -20,10 +21,7 @@ from mpclab.codegen import cycles, pil
 from mpclab.experiment import build_run
 from mpclab.sim import simulate
 
-MISSING = pil.missing_tools()
-pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"PIL needs {', '.join(MISSING)} "
-                                "(Debian: gcc-arm-none-eabi libnewlib-arm-none-eabi "
-                                "qemu-system-arm; .ci/run installs them)")
+pytestmark = pytest.mark.needs("pil")
 
 #: board against desktop: the double build is the same IEEE arithmetic in the same order (its
 #: doubles in libgcc's software routines); the single build rounds every table and operation

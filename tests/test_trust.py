@@ -131,7 +131,13 @@ def snapshot(root: Path) -> dict[str, tuple[int, bytes | None]]:
             for p in sorted(root.rglob("*"))}
 
 
-@pytest.mark.parametrize(("args", "names"), CASES, ids=[" ".join(c[0])[:70] for c in CASES])
+def _case(args: list[str], names: str):
+    """A case; one that picks Hydra's Ray launcher needs the ``ray`` extra to compose."""
+    marks = [pytest.mark.needs("ray")] if "hydra/launcher=ray_cluster" in args else []
+    return pytest.param(args, names, marks=marks, id=" ".join(args)[:70])
+
+
+@pytest.mark.parametrize(("args", "names"), [_case(*c) for c in CASES])
 def test_a_hostile_config_is_refused_and_touches_nothing(args, names, tmp_path, monkeypatch,
                                                          capsys) -> None:
     conf, victim, marker = attacker(tmp_path)
