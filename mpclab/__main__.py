@@ -25,7 +25,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from mpclab.config import CONF_DIR
+from mpclab.config import BARE_DEFAULTS, CONF_DIR
 from mpclab.errors import bad_input_message
 from mpclab.help import text as help_text
 from mpclab.origin import RunOrigin
@@ -59,7 +59,8 @@ class RunFailed(Exception):
 
 
 class SweepFailed(Exception):
-    """A sweep none of whose jobs has a result (each job's row says why)."""
+    """A sweep none of whose jobs has a result (each job's row says why), or that found no
+    run record at all."""
 
 
 class _TaskError(BaseException):
@@ -87,8 +88,8 @@ def _task(cfg: DictConfig) -> dict:
     out_dir = Path(hc.runtime.output_dir)
     if hc.runtime.choices.get("experiment") is None:
         names = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
-        log.warning("no +experiment=NAME given: running the bare defaults (Study A's car "
-                    "without its terminal constraint). Experiments: %s", ", ".join(names))
+        log.warning("no +experiment=NAME given: running %s. Experiments: %s", BARE_DEFAULTS,
+                    ", ".join(names))
     if hc.mode == RunMode.MULTIRUN:
         from mpclab.sweeps.jobs import run_job
 

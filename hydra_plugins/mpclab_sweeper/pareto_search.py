@@ -43,6 +43,7 @@ from optuna.trial import TrialState
 
 from mpclab import tables
 from mpclab.errors import ConfigError
+from mpclab.sweeps.expand import sweep_dir_override
 from mpclab.tables.pareto import override_value, pareto_points, parse_objectives
 
 log = logging.getLogger(__name__)
@@ -149,7 +150,8 @@ class ParetoSearchSweeper(Sweeper):
                 study.set_user_attr("next_job", start + len(self.seeds))
             trial.set_user_attr("first_job", start)
             point = [f"{k}={override_value(v)}" for k, v in trial.params.items()]
-            batch = [[*fixed, *point, f"seed={s}"] for s in self.seeds]
+            batch = [[*fixed, *point, f"seed={s}", sweep_dir_override(sweep_dir)]
+                     for s in self.seeds]
             self.launcher.launch(batch, initial_job_idx=start)
             self._tell(study, trial, objectives, [sweep_dir / str(start + i)
                                                   for i in range(len(self.seeds))])

@@ -31,7 +31,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from mpclab import record
-from mpclab.sweeps.expand import job_overrides
+from mpclab.sweeps.expand import job_overrides, sweep_dir_override
 from mpclab.sweeps.jobs import error_summary
 from mpclab.trust import check_config
 
@@ -68,10 +68,11 @@ class TolerantSweeper(Sweeper):
     def sweep(self, arguments: list[str]) -> list[Sequence[JobReturn]]:
         assert self.config is not None and self.launcher is not None
         assert self.hydra_context is not None
+        sweep_dir = Path(str(self.config.hydra.sweep.dir))
         lines = [f"{k}={v}" for k, v in self.params.items()] + list(arguments)
+        lines.append(sweep_dir_override(sweep_dir))  # every job under the announced folder
         parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)
         batches = job_overrides(parser.parse_overrides(lines), self.max_batch_size)
-        sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
         returns: list[Sequence[JobReturn]] = []

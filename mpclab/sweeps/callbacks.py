@@ -38,7 +38,8 @@ STREAMS = (PROGRESS_FILE, "rows.jsonl", "tasks.jsonl")
 BAR_WIDTH = 20
 #: the folder of the sweep this process is launching, from its start to its end
 _LAUNCHING: list[Path] = []
-#: the first error of the sweep this process launched last, if every one of its jobs failed
+#: why the sweep this process launched last has no result (every job failed, or no job
+#: wrote a run record), said by the command as it exits non-zero
 _ALL_FAILED: list[str] = []
 
 
@@ -89,8 +90,8 @@ def forget_sweep() -> None:
 
 
 def failed_sweep() -> str | None:
-    """The first error of the sweep this process launched last, if every job failed (and
-    forget it); None otherwise."""
+    """Why the sweep this process launched last has no result (every job failed: the first
+    error; or no run record was found), and forget it; None if it has results."""
     message = _ALL_FAILED[0] if _ALL_FAILED else None
     _ALL_FAILED.clear()
     return message
@@ -238,8 +239,8 @@ class SweepCallback(Callback):
             meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
             (state / SWEEP_FILE).write_text(json.dumps(meta))
         df = report.runs
-        if df.empty:
-            log.warning("sweep: no run records in %s", sweep_dir)
+        if df.empty:  # the command fails with this line (mpclab.__main__)
+            _ALL_FAILED[:] = [f"the sweep wrote no run record: none found below {sweep_dir}"]
             return
         counts = df["status"].value_counts().to_dict()
         if set(counts) == {"error"}:

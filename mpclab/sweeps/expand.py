@@ -8,7 +8,9 @@ order the keys first appear, split into batches of ``max_batch_size`` (None: one
 from __future__ import annotations
 
 import itertools
+import re
 from collections.abc import Sequence
+from pathlib import Path
 
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
@@ -35,3 +37,13 @@ def job_overrides(overrides: Sequence[Override],
         raise HydraException(f"hydra.sweeper.max_batch_size: expected a whole number >= 1 "
                              f"or null, got {max_batch_size}")
     return [jobs[i:i + max_batch_size] for i in range(0, len(jobs), max_batch_size)]
+
+
+def sweep_dir_override(sweep_dir: Path | str) -> str:
+    """The override that puts a job under the sweep's folder, resolved once from the sweep's
+    config: each job's own config could resolve ``hydra.sweep.dir`` elsewhere (its default,
+    ``outputs/multirun/${name}/...``, names each experiment of a sweep over experiments)."""
+    text = str(sweep_dir)
+    if re.fullmatch(r"[\w./-]+", text):
+        return f"hydra.sweep.dir={text}"
+    return "hydra.sweep.dir='" + text.replace("'", "\\'") + "'"  # Hydra's quoted string
