@@ -19,6 +19,20 @@ _PACKAGE = Path(__file__).resolve().parent
 #: the config folder: shipped inside the installed package, else the source tree's
 CONF_DIR = _PACKAGE / "conf" if (_PACKAGE / "conf").is_dir() else _PACKAGE.parent / "conf"
 
+#: what ``conf/config.yaml`` composes when no ``+experiment=NAME`` is given
+BARE_DEFAULTS = "the bare defaults (Study A's car without its terminal constraint)"
+
+
+def config_file(path: str | Path) -> Path | None:
+    """The file a config option names: an absolute path, or a relative one read from the
+    working folder, else from the config folder (files shipped with the configs, such as the
+    latency profiles and the net's weights); None where neither has it."""
+    file = Path(str(path)).expanduser()
+    for candidate in (file,) if file.is_absolute() else (file, CONF_DIR / file):
+        if candidate.is_file():
+            return candidate
+    return None
+
 
 @dataclass
 class FiguresConf:

@@ -65,7 +65,7 @@ def test_visited_features_equal_what_the_loop_sensed(tmp_path) -> None:
     rows = pd.read_parquet(tmp_path / "dataset.parquet")
     from pathlib import Path
 
-    mlp = MLP.load(Path(__file__).resolve().parents[1] / "experiments/zumo_nn/weights.npz")
+    mlp = MLP.load(Path(__file__).resolve().parents[1] / "conf/weights/zumo_nn.npz")
     steps = res.steps.dropna(subset=["solve_time_s"])
     got = visited_features(mlp, run, steps[list(run.plant.states)])
     ranges = rows[[c for c in rows.columns if c.startswith("d") and c[1:].isdigit()]]

@@ -19,7 +19,7 @@ from mpclab.policy.mlp import MLP
 def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> None:
     work, pub = tmp_path / "work", tmp_path / "pub"
     main(["--config", str(ROOT / "conf/approx/zumo_nn_smoke.yaml"),
-          f"work_dir={work}", f"publish_dir={pub}"])
+          f"work_dir={work}", f"publish_dir={pub}", f"weights_file={pub / 'weights.npz'}"])
     data, meta = dataset.read(work / "dataset.parquet")
     assert meta["runs"] == 4 and meta["missing"] == [] and len(data) > 0
     # the hash each Hydra job's recorder wrote is the hash of the config Hydra saved for it

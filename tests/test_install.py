@@ -1,12 +1,14 @@
 """The built wheel installs into a fresh virtual environment and runs outside the checkout.
 
 The wheel carries the configs (``conf/`` as ``mpclab/conf``, :data:`mpclab.config.CONF_DIR`),
-so ``python -m mpclab`` runs with no source tree in sight, and a user's own folder added with
-``-cd`` composes an experiment from the shipped groups.
+so ``python -m mpclab`` runs every experiment its ``--help`` lists with no source tree in sight
+(the files the configs name, such as the net's weights, ship with them), and a user's own
+folder added with ``-cd`` composes an experiment from the shipped groups.
 """
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -42,7 +44,11 @@ def test_the_wheel_runs_outside_the_checkout(tmp_path: Path) -> None:
     work.mkdir()
     where = _run([str(python), "-c", "import mpclab.config as c; print(c.CONF_DIR)"], work)
     assert Path(where.stdout.strip()).is_relative_to(env)  # the shipped configs, not ours
-    _run([str(python), "-m", "mpclab", "+experiment=car_cvxpy", "+ci=smoke"], work)
+    helped = _run([str(python), "-m", "mpclab", "--help"], work).stdout
+    listed = re.findall(r"^  (\w+) ", helped.split("Experiments")[1].split("\n\n")[0], re.M)
+    assert "zumo_nn" in listed and "car_cvxpy" in listed, helped
+    for name in listed:
+        _run([str(python), "-m", "mpclab", f"+experiment={name}", "+ci=smoke"], work)
     out = _run([str(python), "-m", "mpclab", "-cd", str(user), "+experiment=mine",
                 "+ci=smoke"], work)
     assert "run record" in out.stdout + out.stderr

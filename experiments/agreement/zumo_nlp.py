@@ -66,7 +66,7 @@ BACKENDS: dict[str, list[str]] = {
     "ipopt": ["controller=casadi"],
     "sqp_capped3": ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
 }
-NN_WEIGHTS = ROOT / "experiments/zumo_nn/weights.npz"
+NN_WEIGHTS = ROOT / "conf/weights/zumo_nn.npz"
 QUIET = ["recorder=none", "progress=false", "figures.enabled=false", "sim=nominal"]
 
 

@@ -76,7 +76,8 @@ class EvalConf:
 @dataclass
 class PipelineConf:
     work_dir: str = "outputs/zumo_nn"        # sweeps, datasets, per-round weights
-    publish_dir: str = "experiments/zumo_nn"  # final weights, C source, tables, figures
+    publish_dir: str = "experiments/zumo_nn"  # C source, tables, figures
+    weights_file: str = "conf/weights/zumo_nn.npz"  # the final net, run by +experiment=zumo_nn
     n_jobs: int = -1                          # joblib workers (-1: every core; 1: in-process)
     data: DataConf = field(default_factory=DataConf)
     train: TrainConf = field(default_factory=TrainConf)
@@ -160,6 +161,7 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(f"--stages: unknown stage(s) {', '.join(sorted(unknown))}; stages: "
                  f"{', '.join(STAGES)}")
     work, pub = ROOT / conf.work_dir, ROOT / conf.publish_dir
+    published = ROOT / conf.weights_file
     work.mkdir(parents=True, exist_ok=True)
     pub.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -203,12 +205,12 @@ def main(argv: list[str] | None = None) -> None:
             history.append({"round": r, "rows": len(data), **report})
             print(f"round {r}: {report}", flush=True)
     if history:
-        shutil.copy(weights, pub / "weights.npz")
-        (pub / "mpclab_nn.c").write_text(to_c(MLP.load(pub / "weights.npz")))
+        shutil.copy(weights, published)
+        (pub / "mpclab_nn.c").write_text(to_c(MLP.load(published)))
         pd.DataFrame(history).to_csv(pub / "training.csv", index=False)
         (pub / "training.md").write_text(stamped(pd.DataFrame(history).to_markdown(index=False)))
     if "eval" in stages:
-        run_eval(conf, pub / "weights.npz", work / "eval", pub)
+        run_eval(conf, published, work / "eval", pub)
     print(f"done in {time.perf_counter() - t0:.0f} s; results in {pub}", flush=True)
 
 

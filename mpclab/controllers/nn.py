@@ -9,10 +9,10 @@ no scikit-learn call) and clips to the input bounds. ``x_pred`` is the current s
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
+from mpclab.config import config_file
 from mpclab.controllers.base import Controller, ControlStep, FloatArray, SolveStatus, StepContext
 from mpclab.errors import ConfigError
 from mpclab.plants.base import Plant
@@ -21,8 +21,6 @@ from mpclab.policy.mlp import MLP, Activation, activate
 from mpclab.registry import component
 from mpclab.status import Problem
 from mpclab.world.scenario import Scenario
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @component("controller", "nn", injected=("plant", "scenario"))
@@ -34,7 +32,8 @@ class NNController(Controller):
     plant
         Injected; needs ``position`` and ``heading`` labels.
     weights
-        Path of the ``.npz`` written by training; its metadata names the feature set.
+        Path of the ``.npz`` written by training (relative: from the working folder, else
+        from the config folder); its metadata names the feature set.
     dt
         Sample time [s].
     scenario
@@ -55,9 +54,8 @@ class NNController(Controller):
         delay_compensation: bool = False,
     ) -> None:
         super().__init__(plant, 0, dt, delay_compensation)
-        path = Path(weights)
         try:
-            self.mlp = MLP.load(path if path.is_absolute() else ROOT / path)
+            self.mlp = MLP.load(config_file(weights) or weights)
         except (ValueError, FileNotFoundError) as exc:
             raise ConfigError(f"controller.weights: {exc}") from None
         meta = self.mlp.meta

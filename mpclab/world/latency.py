@@ -5,13 +5,12 @@ the recorded latency profiles they draw from (the loop's timing itself is
 from __future__ import annotations
 
 from enum import StrEnum
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from mpclab.config import CONF_DIR
+from mpclab.config import CONF_DIR, config_file
 from mpclab.errors import ConfigError, number, parse_choice
 from mpclab.plants.base import FloatArray
 
@@ -58,10 +57,8 @@ def latency_profile_s(path: str | None) -> FloatArray:
     if not path:
         raise ConfigError(f"{key}: sim.latency=recorded needs a file with a latency_s column "
                           f"(e.g. {key}=sim/profiles/zumo_bug2_fatrop.csv)")
-    file = Path(str(path)).expanduser()
-    if not file.is_absolute() and not file.exists() and (CONF_DIR / file).exists():
-        file = CONF_DIR / file
-    if not file.is_file():
+    file = config_file(path)
+    if file is None:
         raise ConfigError(f"{key}: no file {str(path)!r} (from the working folder or {CONF_DIR})")
     if file.suffix not in (".csv", ".parquet"):
         raise ConfigError(f"{key}: {str(path)!r} must be a .csv or .parquet file")
