@@ -7,8 +7,8 @@ first line of their description, the choices of each group, the objective term a
 constraint types (by the ``_target_`` an objective YAML names them with, and the backends
 that can express each), the
 chosen controller's options with their one-line meaning (from its constructor's docstring),
-then the config the rest of the command line composes (the README's default experiment when
-it names none). Hydra's flags stay: ``--hydra-help``, ``--cfg job``, ``--info``.
+then the config the rest of the command line composes (what a bare run composes when it names
+no experiment). Hydra's flags stay: ``--hydra-help``, ``--cfg job``, ``--info``.
 """
 
 from __future__ import annotations
@@ -20,13 +20,13 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from mpclab.config import BARE_DEFAULTS
 from mpclab.constraints.base import Constraint
 from mpclab.experiment import CONF_DIR, compose
 from mpclab.expressible import Expressible
 from mpclab.objectives.base import Term
 from mpclab.registry import TARGETS, register_all
 
-DEFAULT_EXPERIMENT = "zumo_bug2"
 #: config groups a user chooses from, in the order a run is assembled
 GROUPS = ("plant", "controller", "objective", "scenario", "supervisor", "sim", "recorder")
 
@@ -115,11 +115,10 @@ def text(args: Sequence[str] = ()) -> str:
             "an option may rule a backend out, which the run then names):"]
     for target, backends in expressible_types(Constraint):
         out.append(f"  {target}  [{', '.join(backends)}]")
-    title = "The config of: {}"
+    what = f"The config of: {' '.join(overrides)}"
     if not any(o.lstrip("+").startswith("experiment=") for o in overrides):
-        overrides = [f"+experiment={DEFAULT_EXPERIMENT}", *overrides]
-        title = "The default experiment's config ({})"
-    what = title.format(" ".join(overrides))
+        what = (f"Without +experiment=NAME a run composes {BARE_DEFAULTS}"
+                + (f", with {' '.join(overrides)}" if overrides else "") + ":")
     cfg = compose(overrides, config_dir=folders[0] if folders else None)
     out += ["", *_controller_options(cfg)]
     body = OmegaConf.to_yaml(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]))

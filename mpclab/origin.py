@@ -29,10 +29,12 @@ _OPTION = re.compile(r"^[A-Za-z_][\w.]*: ([A-Za-z_][\w.]*): ")
 
 @dataclass(frozen=True)
 class RunOrigin:
-    """What Hydra chose for one run: its group choices and its command-line overrides."""
+    """What Hydra chose for one run: its group choices, its command-line overrides and the
+    config folders it searched (in Hydra's order: the first that has a file provides it)."""
 
     choices: dict[str, Any]
     overrides: tuple[str, ...]
+    folders: tuple[Path, ...] = ()
 
     @classmethod
     def from_hydra(cls) -> RunOrigin | None:
@@ -41,12 +43,15 @@ class RunOrigin:
         if not HydraConfig.initialized():
             return None
         hc = HydraConfig.get()
-        return cls(dict(hc.runtime.choices), tuple(hc.overrides.task))
+        folders = tuple(Path(s.path) for s in hc.runtime.config_sources
+                        if s.schema == "file" and s.path)
+        return cls(dict(hc.runtime.choices), tuple(hc.overrides.task), folders)
 
 
 def where_set(cfg: DictConfig, message: str, conf_dir: Path, run: RunOrigin | None) -> str:
-    """``" (set in FILE, ...)"`` for the key ``message`` is about, or ``""`` when it cannot
-    be told (no run origin, no key path in the message, nothing found)."""
+    """``" (set in FILE, then ...)"`` for the key ``message`` is about, in the order Hydra
+    merged them (the last one's value is the one used), or ``""`` when it cannot be told (no
+    run origin, no key path in the message, nothing found)."""
     m, term = _PATH.match(message), _TERM.match(message)
     if (m is None and term is None) or run is None:
         return ""
@@ -58,13 +63,21 @@ def where_set(cfg: DictConfig, message: str, conf_dir: Path, run: RunOrigin | No
     node = OmegaConf.select(cfg, path, default=None)
     labels = set(_QUOTED.findall(message)) - ({term.group(1)} if term else set())
     keys = _keys_named(node, path, labels) if isinstance(node, DictConfig) else []
+    folders = run.folders or (conf_dir,)
     found: list[str] = []
     for key in keys or [path]:
-        found += [f for f in _files_setting(key, run.choices, conf_dir) if f not in found]
+        found += [f for f in _files_setting(key, run.choices, folders) if f not in found]
         found += [f"the command line ({line})" for line in run.overrides
-                  if line.lstrip("+~").split("=")[0] in (key, path) and
-                  f"the command line ({line})" not in found]
+                  if _related(setting := line.lstrip("+~").split("=")[0], key)
+                  and setting not in run.choices  # a group's choice: its file is named
+                  and f"the command line ({line})" not in found]
     return f" (set in {', then '.join(found)})" if found else ""
+
+
+def _related(a: str, b: str) -> bool:
+    """Whether setting dotted key ``a`` sets (part of) ``b``: the same, or one inside the
+    other."""
+    return a == b or a.startswith(b + ".") or b.startswith(a + ".")
 
 
 def _keys_named(node: DictConfig, path: str, labels: set[str]) -> list[str]:
@@ -79,30 +92,46 @@ def _keys_named(node: DictConfig, path: str, labels: set[str]) -> list[str]:
     return out
 
 
-def _files_setting(key: str, choices: dict[str, Any], conf_dir: Path) -> list[str]:
-    """The defaults files of this run that set the dotted ``key``."""
+def _files_setting(key: str, choices: dict[str, Any], folders: tuple[Path, ...]) -> list[str]:
+    """The defaults files of this run that set the dotted ``key`` (or a part of it), in the
+    order Hydra merges them: the key's group's file (after the files it extends), then the
+    experiment's (after the experiments it extends)."""
     group, _, inner = key.partition(".")
-    out = []
+    setting = []
     if choices.get(group):
-        for path in _group_chain(conf_dir / group, str(choices[group])):
-            if _sets(_load(path), inner):
-                out.append(str(path.relative_to(conf_dir.parent)))
-    experiment = choices.get("experiment")
-    if experiment:
-        path = conf_dir / "experiment" / f"{experiment}.yaml"
-        if _sets(_load(path), key):
-            out.append(str(path.relative_to(conf_dir.parent)))
-    return out
+        setting += [(path, inner) for path in _group_chain(folders, group, str(choices[group]))]
+    if choices.get("experiment"):
+        setting += [(path, key) for path in
+                    _group_chain(folders, "experiment", str(choices["experiment"]))]
+    return [_shown(path) for path, dotted in setting if _sets(_load(path), dotted)]
 
 
-def _group_chain(folder: Path, name: str) -> list[Path]:
+def _shown(path: Path) -> str:
+    """A file as a user finds it: relative to the working folder when inside it."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def _find(folders: tuple[Path, ...], group: str, name: str) -> Path | None:
+    """The file Hydra takes for ``group/name``: the first config folder that has it."""
+    for folder in folders:
+        path = folder / group / f"{name}.yaml"
+        if path.is_file():
+            return path
+    return None
+
+
+def _group_chain(folders: tuple[Path, ...], group: str, name: str) -> list[Path]:
     """A group's file and the files of its group it extends (its defaults list), base first."""
-    path = folder / f"{name}.yaml"
-    doc = _load(path)
+    path = _find(folders, group, name)
+    if path is None:
+        return []
     chain: list[Path] = []
-    for entry in doc.get("defaults", []) or []:
-        if isinstance(entry, str) and entry != "_self_" and (folder / f"{entry}.yaml").is_file():
-            chain += _group_chain(folder, entry)
+    for entry in _load(path).get("defaults", []) or []:
+        if isinstance(entry, str) and entry != "_self_" and "/" not in entry:
+            chain += _group_chain(folders, group, entry)
     return [*chain, path]
 
 
@@ -115,9 +144,11 @@ def _load(path: Path) -> dict[str, Any]:
 
 
 def _sets(doc: Any, dotted: str) -> bool:
-    """Whether the YAML mapping ``doc`` holds the nested key ``dotted``."""
-    for part in dotted.split(".") if dotted else []:
-        if not isinstance(doc, dict) or part not in doc:
-            return False
-        doc = doc[part]
-    return bool(dotted)
+    """Whether the YAML mapping ``doc`` holds the nested key ``dotted`` (its whole value or,
+    in a dotted key of its own such as ``start.y``, a part of it)."""
+    if not dotted or not isinstance(doc, dict):
+        return False
+    head, _, rest = dotted.partition(".")
+    if head in doc:
+        return not rest or _sets(doc[head], rest)
+    return any(isinstance(k, str) and "." in k and _related(k, dotted) for k in doc)

@@ -35,7 +35,7 @@ CAR, CASADI_CAR, ZUMO, BUG2, BUG2_STUDY = (
     f"+experiment={n}" for n in
     ("car_cvxpy", "car_casadi", "zumo_potential", "zumo_bug2", "zumo_bug2_study"))
 BICYCLE, NN = "+experiment=bicycle_scheduled", "+experiment=zumo_nn"
-WEIGHTS = ROOT / "experiments" / "zumo_nn" / "weights.npz"
+WEIGHTS = ROOT / "conf" / "weights" / "zumo_nn.npz"
 
 #: (overrides, strings the message must contain: the key and/or the value)
 CASES: list[tuple[list[str], list[str]]] = [
@@ -386,6 +386,28 @@ def test_subprocess_exit_code_and_no_traceback(tmp_path: Path) -> None:
 def test_the_message_says_where_the_key_came_from(overrides, wanted, capsys, tmp_path) -> None:
     code, text = run_cli(capsys, tmp_path / "run", overrides)
     assert_one_clear_message(code, text, wanted, tmp_path / "run")
+
+
+def test_the_message_names_a_users_file_and_a_part_set_on_the_command_line(
+        capsys, tmp_path, monkeypatch) -> None:
+    """The value a user's own experiment file (a folder added with ``-cd``) sets is named in
+    that file, after the group's file it overrides; a part of a key set on the command line
+    (``scenario.start.y``) names the command line."""
+    mine = tmp_path / "my_confs" / "experiment" / "mine.yaml"
+    mine.parent.mkdir(parents=True)
+    mine.write_text("# @package _global_\ndefaults:\n  - zumo_bug2\n  - _self_\n"
+                    "supervisor:\n  modes:\n    go_to_goal: [J1, J2, J3, dU, Jx]\n")
+    monkeypatch.chdir(tmp_path)
+    code = cli(["-cd", str(mine.parents[1]), "+ci=smoke", f"hydra.run.dir={tmp_path / 'run'}",
+                "+experiment=mine"])
+    text = "".join(capsys.readouterr())
+    assert_one_clear_message(code, text, [
+        "'Jx'", f"(set in {CONF_DIR / 'supervisor' / 'bug2.yaml'}, then "
+                "my_confs/experiment/mine.yaml)"], tmp_path / "run")
+    code, text = run_cli(capsys, tmp_path / "run", [BUG2, "scenario.start.y=0.6"])
+    assert_one_clear_message(code, text, [
+        "scenario.start:", "(set in ", "then the command line (scenario.start.y=0.6))"],
+        tmp_path / "run")
 
 
 def test_a_library_run_names_no_other_runs_command_line() -> None:

@@ -187,7 +187,7 @@ def test_module_entry_point_runs_from_the_repository_root(tmp_path: Path) -> Non
     assert json.loads((out / record.SUMMARY).read_text())["experiment"] == "car_cvxpy"
 
 
-def test_help_lists_what_there_is_to_run_and_the_default_experiment() -> None:
+def test_help_lists_what_there_is_to_run_and_what_a_bare_run_composes() -> None:
     out = subprocess.run([sys.executable, "-m", "mpclab", "--help"], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -197,5 +197,6 @@ def test_help_lists_what_there_is_to_run_and_the_default_experiment() -> None:
                  "mpclab.objectives.rate.InputRate"):  # choices and a term type
         assert name in text, name
     assert "schema/" not in text  # Hydra's internal schema entries are not choices
-    assert "The default experiment's config (+experiment=zumo_bug2)" in text
-    assert "name: zumo_bug2" in text and "kinematic_car.KinematicCar" not in text
+    assert "Without +experiment=NAME a run composes the bare defaults" in text
+    # the config shown is the one a bare run composes (the car), not an experiment's
+    assert "name: run" in text and "kinematic_car.KinematicCar" in text
