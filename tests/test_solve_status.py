@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -98,6 +100,29 @@ def test_a_nan_result_labelled_success_is_a_failure_and_falls_back(where, monkey
     assert res.status is SolveStatus.failed and res.fallback
     assert res.solver_status == "non_finite(Solve_Succeeded)"
     np.testing.assert_allclose(res.u, first.u_pred[1])
+
+
+@pytest.mark.parametrize("word", ["optimal", None, 3])
+def test_a_status_outside_the_vocabulary_is_a_counted_failure(word, monkeypatch) -> None:
+    """A backend that returns its own word (not a SolveStatus) has failed: the call falls
+    back and is counted with the failed ones, never with none of them."""
+    mpc = _zumo()
+    x = np.array([0.4, 0.8, 0.0])
+    first = mpc.step(0.0, x, _ctx())
+
+    def own_word(t, x, ctx):
+        T, nu = mpc.horizon, mpc.plant.nu
+        return ControlStep(u=np.ones(nu), x_pred=np.tile(x, (T + 1, 1)),
+                           u_pred=np.ones((T, nu)), status=word, iterations=2)
+
+    monkeypatch.setattr(mpc, "_solve", own_word)
+    res = mpc.step(0.2, x, _ctx())
+    assert res.status is SolveStatus.failed and res.fallback
+    assert res.solver_status == f"unknown_status({word!r})" and res.iterations == 2
+    np.testing.assert_allclose(res.u, first.u_pred[1])
+    monkeypatch.setattr(mpc, "_solve", lambda t, x, ctx: replace(
+        own_word(t, x, ctx), status="converged"))  # a plain string of the vocabulary is it
+    assert mpc.step(0.4, x, _ctx()).status is SolveStatus.converged
 
 
 def test_summary_counts_every_status(run_cfg) -> None:

@@ -172,6 +172,11 @@ class Controller(ABC):
             if stop is not None:
                 raise stop from exc
             res = self._failed(SolveStatus.exception, x, type(exc).__name__, str(exc))
+        if not isinstance(res.status, SolveStatus):  # a backend's word outside the vocabulary
+            res = _known_status(res) or self._failed(
+                SolveStatus.failed, x, f"unknown_status({res.status!r})",
+                f"the backend returned status {res.status!r}, not one of "
+                f"{', '.join(SolveStatus)}", res.iterations)
         if res.ok and not res.finite:  # a "success" with NaN or inf in it is a failure
             res = self._failed(SolveStatus.failed, x, f"non_finite({res.solver_status})",
                                "the solver returned non-finite values", res.iterations)
@@ -240,6 +245,15 @@ class Controller(ABC):
         res = replace(failed, u=u, x_pred=x_pred, u_pred=u_pred, fallback=True)
         self._plan = replace(res)
         return res
+
+
+def _known_status(res: ControlStep) -> ControlStep | None:
+    """``res`` with its status as a :class:`SolveStatus` where it is one's value (a plain
+    ``"converged"``), else None."""
+    try:
+        return replace(res, status=SolveStatus(res.status))
+    except ValueError:
+        return None
 
 
 def input_vector(plant: Plant, values: Mapping[str, float] | None, key: str) -> FloatArray:

@@ -365,8 +365,10 @@ class CvxpyMPC(Controller):
         return Problem.nonlinear if self.sl is SlMode.converge else Problem.linearized
 
     def metrics(self, steps: Any) -> dict[str, Any]:
-        """The linearization scheme; with constraints, theirs and their slacks."""
-        return {"sl": self.sl.value, **(self.limits.metrics() if self.limits else {})}
+        """The solver and the linearization scheme; with constraints, theirs and their
+        slacks."""
+        return {"solver": self.solver, "sl": self.sl.value,
+                **(self.limits.metrics() if self.limits else {})}
 
     def _trust_region_qp(self, bar: Point, r: float, through: Point | None = None,
                          ) -> QPSolution:

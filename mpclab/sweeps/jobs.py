@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from mpclab import record
 from mpclab.errors import bad_input_message
@@ -108,15 +108,22 @@ def error_summary(
     name = cfg.get("name") if cfg is not None else None
     seed = cfg.get("seed") if cfg is not None else named.get("seed")
 
+    def source(group: str) -> DictConfig | None:
+        return cfg if cfg is not None else (base if group not in given else None)
+
     def component(group: str) -> Any:
-        source = cfg if cfg is not None else (base if group not in given else None)
-        found = component_name(source.get(group)) if source is not None else None
+        found = component_name(source(group).get(group)) if source(group) is not None else None
         return found or named.get(group)
 
+    controller = source("controller")
+    solver = named.get("controller.solver") or (
+        OmegaConf.select(controller, "controller.solver", default=None)
+        if controller is not None else None)
     return {
         "experiment": name,
         "plant": component("plant"),
         "controller": component("controller"),
+        **({"solver": str(solver)} if solver is not None else {}),  # its backend's label
         "scenario": named.get("scenario"),
         "seed": int(seed) if str(seed).lstrip("-").isdigit() else None,
         "status": "error",

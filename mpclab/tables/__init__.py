@@ -246,7 +246,7 @@ def _frame(rows: list[dict[str, Any]], params: list[str]) -> pd.DataFrame:
         if col not in df:
             df[col] = None
     df = _tidy(df)
-    df["backend"] = _backend(df, params)
+    df["backend"] = _backend(df)
     param_cols = [p for p in params if p in df]
     lead = [c for c in LEAD if c in df]
     first = [p for p in param_cols if p not in lead]
@@ -296,19 +296,17 @@ def _tidy(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def _backend(df: pd.DataFrame, params: list[str]) -> pd.Series:
-    """The controller, with its solver when a sweep varies ``controller.solver``, or when
-    the solver its summary records varies among runs of one controller (a sweep over
-    ``controller=casadi_fatrop,casadi``)."""
+def _backend(df: pd.DataFrame) -> pd.Series:
+    """The controller and its solver (``casadi:fatrop``, ``cvxpy:CLARABEL``): the solver its
+    summary records, else the one its config sets; the controller alone where neither says.
+    One label per backend and solver, whichever runs share the table."""
     backend = df["controller"].fillna("?").astype(str)
-    if "controller.solver" in params and df["controller.solver"].nunique() > 1:
-        solver = df["controller.solver"].fillna("").astype(str)
-        backend = backend.where(solver == "", backend + ":" + solver)
-    elif "solver" in df:
-        solver = df["solver"].fillna("").astype(str)
-        varies = solver.groupby(backend).transform("nunique") > 1
-        backend = backend.where(~varies | (solver == ""), backend + ":" + solver)
-    return backend
+    solver = pd.Series("", index=df.index)
+    for col in ("controller.solver", "solver"):  # the summary's word last: it wins
+        if col in df:
+            said = df[col].fillna("").astype(str)
+            solver = said.where(said != "", solver)
+    return backend.where(solver == "", backend + ":" + solver)
 
 
 def markdown(df: pd.DataFrame, groups: pd.DataFrame | None = None) -> str:

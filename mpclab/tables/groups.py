@@ -39,7 +39,7 @@ def group_keys(df: pd.DataFrame) -> list[str]:
     sweep varies, except the seed (a group is the repetitions of one configuration)."""
     named = {"controller", "scenario", *NOT_GROUPED}
     if "controller.solver" in df and "controller.solver" in df.attrs.get("params", []):
-        named.add("controller.solver")  # in ``backend`` when it varies
+        named.add("controller.solver")  # in ``backend``
     swept = [p for p in df.attrs.get("params", []) if p in df and p not in named
              and df[p].astype(str).nunique(dropna=False) > 1]
     return ["backend", "scenario", *swept]
