@@ -6,7 +6,7 @@ From Python (a notebook, a loop of your own)::
     cfg = mpclab.compose(["+experiment=zumo_bug2", "seed=3"])   # or config_dir="my_confs"
     result = mpclab.run(cfg)          # result.steps, result.horizons, result.summary
 
-The names below load on first use, so that ``python -m mpclab.tables`` and the like do not
+The names below load on first use, so that ``python -m mpclab.cli.tables`` and the like do not
 import the solvers.
 """
 
@@ -16,8 +16,8 @@ import importlib
 from typing import Any
 
 #: the Python API: name -> the module that defines it
-API = {"compose": "mpclab.experiment", "run": "mpclab.experiment",
-       "build_run": "mpclab.experiment", "ComponentCache": "mpclab.warm"}
+API = {"compose": "mpclab.runner.single_run", "run": "mpclab.runner.single_run",
+       "build_run": "mpclab.runner.single_run", "ComponentCache": "mpclab.runner.component_cache"}
 __all__ = list(API)
 
 

@@ -20,7 +20,7 @@ sys.modules["agreement"] = agreement  # dataclasses look their module up there
 _spec.loader.exec_module(agreement)
 
 #: a backend that says it converged on the same OCP must be within this of the reference in
-#: cost (issue 12's acceptance: 0.1 %) and in its first input (fraction of the input range)
+#: cost (0.1 %) and in its first input (fraction of the input range)
 CONVERGED_GAP = 1e-3
 CONVERGED_DU0 = 1e-2
 

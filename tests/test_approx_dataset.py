@@ -10,9 +10,9 @@ import pytest
 from omegaconf import OmegaConf
 
 from conftest import compose_cfg
-from mpclab import record
 from mpclab.approx import dataset
-from mpclab.experiment import run_experiment
+from mpclab.record import files as record
+from mpclab.runner.single_run import run_experiment
 
 
 def fake_sweep(root: Path, seeds: list[int], extra: list[str] = ()) -> list[Path]:

@@ -8,7 +8,7 @@ import pytest
 
 from conftest import compose_cfg
 from mpclab.approx.evaluate import StageCost
-from mpclab.stats import clopper_pearson
+from mpclab.record.stats import clopper_pearson
 
 
 def test_clopper_pearson_matches_the_closed_forms_at_the_edges() -> None:

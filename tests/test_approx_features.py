@@ -54,9 +54,9 @@ def test_visited_features_equal_what_the_loop_sensed(tmp_path) -> None:
     import pandas as pd
 
     from mpclab.approx.evaluate import visited_features
-    from mpclab.experiment import build_run, compose
     from mpclab.policy.mlp import MLP
-    from mpclab.sim import simulate
+    from mpclab.runner.loop import simulate
+    from mpclab.runner.single_run import build_run, compose
 
     cfg = compose(["+experiment=zumo_nn_data", "recorder=dataset", "seed=100003",
                    "scenario.t_max=1.0", "figures.enabled=false"])

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.nn import NNController
+from mpclab.controllers.nn.controller import NNController
 from mpclab.plants.zumo import Zumo
 from mpclab.policy.features import FeatureSet, features, n_features
 from mpclab.policy.mlp import MLP

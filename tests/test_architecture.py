@@ -2,9 +2,9 @@
 circle.
 
 Every module's imports are read with ``ast`` (module level and inside functions). A module
-may import modules of its own floor and of the floors below. Known violations are listed in
-the allow-lists below (issue 17); a new one fails. ``python tests/test_architecture.py``
-prints the import edges between the units (the table in docs/architecture.md).
+may import modules of its own floor and of the floors below. Known violations would be listed
+in the allow-lists below (there are none); a new one fails. ``python
+tests/test_architecture.py`` prints the import edges between the packages.
 """
 
 from __future__ import annotations
@@ -19,22 +19,17 @@ ROOT = Path(__file__).resolve().parent.parent
 PKG = ROOT / "mpclab"
 DOC = ROOT / "docs" / "architecture.md"
 
-#: floor -> the modules and packages on it (a package: all its modules unless a longer
-#: prefix puts one elsewhere); docs/architecture.md's table lists the same
+#: floor -> the packages on it (every module of a package is on its floor; the root package
+#: ``mpclab`` holds only itself and ``__main__``); docs/architecture.md's table lists the same
 FLOORS: dict[int, tuple[str, ...]] = {
-    0: ("mpclab", "mpclab.errors", "mpclab.status", "mpclab.lazy", "mpclab.quiet",
-        "mpclab.record", "mpclab.registry", "mpclab.config", "mpclab.instantiate",
-        "mpclab.stats", "mpclab.codegen", "mpclab.progress", "mpclab.warm", "mpclab.stream",
-        "mpclab.origin", "mpclab.provenance", "mpclab.stopping", "mpclab.expressible",
-        "mpclab.figure_file", "mpclab.trust"),
-    1: ("mpclab.plants", "mpclab.objectives", "mpclab.constraints", "mpclab.policy"),
-    2: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recording"),
-    3: ("mpclab.sim",),
-    4: ("mpclab.experiment",),
+    0: ("mpclab", "mpclab.core"),
+    1: ("mpclab.config", "mpclab.record", "mpclab.codegen"),
+    2: ("mpclab.plants", "mpclab.objectives", "mpclab.constraints", "mpclab.policy"),
+    3: ("mpclab.controllers", "mpclab.world", "mpclab.supervisors", "mpclab.recorders"),
+    4: ("mpclab.runner",),
     5: ("mpclab.tables",),
     6: ("mpclab.sweeps", "mpclab.approx"),
-    7: ("mpclab.__main__", "mpclab.tables.__main__", "mpclab.help", "mpclab.codegen.export",
-        "mpclab.preflight"),
+    7: ("mpclab.cli", "mpclab.__main__"),
 }
 
 # Known violations: none today (the sets stay, so that a new one is listed, not silent).
@@ -180,15 +175,38 @@ def test_no_import_cycle() -> None:
 
 def test_composing_imports_only_components() -> None:
     """registry.register_all imports every module of its packages: they must be components
-    (floor 2 or below), not the tools above the runner."""
-    from mpclab.registry import COMPONENT_PACKAGES
+    (the controllers' floor or below), not the tools above the runner."""
+    from mpclab.config.registry import COMPONENT_PACKAGES
 
     reached = {m for m in modules() for p in COMPONENT_PACKAGES
                if m.startswith(p + ".")}
-    above = {m for m in reached if floor(m) > 2}
+    above = {m for m in reached if floor(m) > floor("mpclab.controllers")}
     new, gone = sorted(above - ALLOWED_REGISTRY_UP), sorted(ALLOWED_REGISTRY_UP - above)
     assert not new, f"register_all imports modules above the components: {new}"
     assert not gone, f"fixed, remove from ALLOWED_REGISTRY_UP: {gone}"
+
+
+def test_no_private_field_is_read_across_modules() -> None:
+    """``obj._name`` (not ``self``'s or ``cls``'s) is read only in the module that defines
+    ``_name``: another module asks through a public name. Config keys such as ``_target_``
+    are not fields, and the standard library's public names with an underscore (a named
+    tuple's ``_replace``, ``os._exit``) are not private."""
+    public = {"_replace", "_asdict", "_fields", "_make", "_exit"}
+    found = []
+    for mod, path in modules().items():
+        tree = ast.parse(path.read_text(), str(path))
+        own = {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)
+               and isinstance(n.value, ast.Name) and n.value.id in ("self", "cls")}
+        own |= {n.name for n in ast.walk(tree)
+                if isinstance(n, ast.FunctionDef | ast.ClassDef | ast.AsyncFunctionDef)}
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)):
+                continue
+            name = node.attr
+            if (name.startswith("_") and not name.endswith("_") and node.value.id
+                    not in ("self", "cls") and name not in own | public):
+                found.append(f"{mod}:{node.lineno}: {node.value.id}.{name}")
+    assert not found, f"private fields read from another module: {found}"
 
 
 def test_doc_lists_the_floors() -> None:

@@ -3,8 +3,8 @@ no traceback, no run record.
 
 Every case composes its config as the app does and builds the run (every check refuses
 before the loop starts, and before the expensive build, a CasADi NLP's compile); the error
-goes through the command line's reporter (:func:`mpclab.__main__.report`). A sample of the
-cases runs the whole command line in-process (:func:`mpclab.__main__.cli`, what
+goes through the command line's reporter (:func:`mpclab.cli.app.report`). A sample of the
+cases runs the whole command line in-process (:func:`mpclab.cli.app.cli`, what
 ``python -m mpclab`` calls), and a few run as real subprocesses to prove the exit code and
 the absence of a traceback end to end. Add a case whenever an option appears.
 """
@@ -26,10 +26,10 @@ from hydra import initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 
 from conftest import ROOT
-from mpclab import record
-from mpclab.__main__ import EXIT_BAD_INPUT, cli, report
-from mpclab.errors import ConfigError
-from mpclab.experiment import CONF_DIR, build_run, compose
+from mpclab.cli.app import EXIT_BAD_INPUT, cli, report
+from mpclab.core.errors import ConfigError
+from mpclab.record import files as record
+from mpclab.runner.single_run import CONF_DIR, build_run, compose
 
 CAR, CASADI_CAR, ZUMO, BUG2, BUG2_STUDY = (
     f"+experiment={n}" for n in

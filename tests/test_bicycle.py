@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
+from mpclab.config.instantiate import build
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.qp_dense import box_qp_2, box_qp_active_set
-from mpclab.controllers.scheduled import ScheduledMPC
-from mpclab.errors import ConfigError
-from mpclab.experiment import compose
-from mpclab.instantiate import build
+from mpclab.controllers.scheduled.dense_qp import box_qp_2, box_qp_active_set
+from mpclab.controllers.scheduled.mpc import ScheduledMPC
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.dynamic_bicycle import DynamicBicycle, rk4_amplification
+from mpclab.runner.single_run import compose
 
 DELTA_MAX = math.radians(30)
 BOUNDS = {"delta": [-DELTA_MAX, DELTA_MAX], "a": [-2.0, 2.0]}

@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 
 from conftest import compose_cfg
-from mpclab import record
-from mpclab.experiment import run_experiment
+from mpclab.record import files as record
+from mpclab.runner.single_run import run_experiment
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
 EXPERIMENTS = {"switched": "bicycle_scheduled", "interpolated": "bicycle_interpolated",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.plants.zumo import Zumo
 from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
 from mpclab.supervisors.bug2 import Bug2

@@ -11,10 +11,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from mpclab import record
 from mpclab.controllers.base import StepContext
-from mpclab.experiment import build_run, compose
-from mpclab.sim import simulate
+from mpclab.record import files as record
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 X0 = np.array([-10.0, 10.0, 0.0, 0.0, 0.0])
 T, DT = 10, 0.1

@@ -7,9 +7,9 @@ import pytest
 
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.casadi_compile import LONG_BUILD_S, announce_long_build
-from mpclab.errors import ConfigError
+from mpclab.controllers.casadi.compile import LONG_BUILD_S, announce_long_build
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction, ObstacleRepulsion
 from mpclab.objectives.quadratic import QuadraticTracking

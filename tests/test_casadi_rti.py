@@ -13,18 +13,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mpclab import record
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.casadi_solvers import CasadiQpSolver, CasadiSolver, nlpsol_options
-from mpclab.errors import ConfigError
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.controllers.casadi.solvers import CasadiQpSolver, CasadiSolver, nlpsol_options
+from mpclab.core.errors import ConfigError
+from mpclab.core.native_output import c_stdout_silenced
+from mpclab.core.status import SolveStatus
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction, ObstacleRepulsion
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.zumo import Zumo
-from mpclab.quiet import c_stdout_silenced
-from mpclab.status import SolveStatus
+from mpclab.record import files as record
 
 GOAL = np.array([0.4, 0.4, 0.0])
 X = np.array([0.4, 0.8, -1.2])

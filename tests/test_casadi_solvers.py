@@ -10,18 +10,18 @@ import numpy as np
 import pytest
 
 from mpclab.codegen import build as codegen_build
+from mpclab.config.instantiate import build
 from mpclab.constraints.obstacle import ObstacleDistance
-from mpclab.controllers import casadi_compile
 from mpclab.controllers.base import SolveStatus, StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.casadi_ocp import Params
-from mpclab.controllers.casadi_solvers import dotted
-from mpclab.errors import ConfigError
-from mpclab.experiment import compose
-from mpclab.instantiate import build
+from mpclab.controllers.casadi import compile as casadi_compile
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.controllers.casadi.ocp import Params
+from mpclab.controllers.casadi.solvers import dotted
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
+from mpclab.runner.single_run import compose
 
 GOAL = np.array([1.6, 0.4, 0.0])
 #: (state, detected points, active terms): BUG2's go-to-goal and wall-following sets, with

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.errors import ConfigError
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from conftest import CONF, compose_cfg
-from mpclab.experiment import run_experiment
-from mpclab.recording.base import Recorder
+from mpclab.recorders.base import Recorder
+from mpclab.runner.single_run import run_experiment
 
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 SMOKE_T_MAX = 1.0

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from mpclab.controllers.base import Controller, ControlStep
+from mpclab.core.status import SolveStatus
 from mpclab.plants.unicycle import Unicycle
 from mpclab.plants.zumo import Zumo
-from mpclab.sim import PATH_CLEARANCE, Run, simulate
-from mpclab.status import SolveStatus
+from mpclab.runner.loop import PATH_CLEARANCE, Run, simulate
 from mpclab.world.clearance import DENSE_TOL_M, ContinuousClearance, arc_distance
-from mpclab.world.realism import SimWorld
+from mpclab.world.sim_world import SimWorld
 from mpclab.world.zumo_world import ObstacleScenario
 
 

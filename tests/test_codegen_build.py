@@ -85,7 +85,7 @@ def test_the_generated_c_is_kept_beside_its_library(tmp_path, monkeypatch) -> No
 
 @pytest.mark.skipif(build.find_compiler() is None, reason="needs a C compiler")
 def test_codegen_true_says_where_the_generated_c_is(tmp_path, monkeypatch, capsys) -> None:
-    from mpclab.__main__ import cli
+    from mpclab.cli.app import cli
 
     monkeypatch.setenv("MPCLAB_CACHE", str(tmp_path / "cache"))
     assert cli(["+experiment=bicycle_scheduled", "+ci=smoke", "controller.codegen=true",
@@ -96,14 +96,14 @@ def test_codegen_true_says_where_the_generated_c_is(tmp_path, monkeypatch, capsy
     files = [Path(p.strip(",")) for p in line.split() if p.startswith(str(tmp_path))]
     assert sorted(p.suffix for p in files) == [".c", ".h"], line
     assert all(p.is_file() and p.with_suffix(".so").is_file() for p in files)
-    assert "mpc_step" in files[0].read_text() and "python -m mpclab.codegen.export" in said
+    assert "mpc_step" in files[0].read_text() and "python -m mpclab.cli.board" in said
 
 
 def test_the_board_export_refuses_a_controller_without_board_c(tmp_path, capsys) -> None:
-    from mpclab.codegen import export
+    from mpclab.cli import board
 
     with pytest.raises(SystemExit) as stop:
-        export.main(["--out", str(tmp_path / "board"), "+experiment=car_cvxpy"])
+        board.main(["--out", str(tmp_path / "board"), "+experiment=car_cvxpy"])
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert "has no C for a board" in err and "controller=scheduled" in err

@@ -14,15 +14,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mpclab import record
 from mpclab.codegen import build as codegen_build
 from mpclab.controllers.base import SolveStatus, StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run, compose
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
+from mpclab.record import files as record
+from mpclab.runner.single_run import build_run, compose
 
 pytestmark = pytest.mark.skipif(codegen_build.find_compiler() is None, reason="no C compiler")
 

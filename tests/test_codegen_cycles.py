@@ -16,9 +16,9 @@ from test_codegen_pil import MARKERS
 from conftest import compose_cfg
 from mpclab.codegen import cycles, pil
 from mpclab.codegen.step_model import fit
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run
-from mpclab.sim import simulate
+from mpclab.core.errors import ConfigError
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run
 
 needs_toolchain = pytest.mark.needs("pil")
 

@@ -2,7 +2,7 @@
 
 Needs Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (``.ci/run``
 installs them); where they are missing, skipped with the command that installs them. About
-5 s. The board folder of ``python -m mpclab.codegen.export`` is built with its own Makefile and
+5 s. The board folder of ``python -m mpclab.cli.board`` is built with its own Makefile and
 run the same way.
 """
 
@@ -18,8 +18,8 @@ from test_bicycle import controller
 
 from conftest import compose_cfg
 from mpclab.codegen import cycles, pil
-from mpclab.experiment import build_run
-from mpclab.sim import simulate
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run
 
 pytestmark = pytest.mark.needs("pil")
 
@@ -85,16 +85,17 @@ def test_pil_on_the_emulated_board_matches_the_desktop_c(recorded, precision, tm
 
 
 def test_the_exported_board_folder_builds_and_prints_what_the_desktop_c_does(tmp_path) -> None:
-    """``python -m mpclab.codegen.export``: the folder builds with its own Makefile
+    """``python -m mpclab.cli.board``: the folder builds with its own Makefile
     (arm-none-eabi-gcc) and its example, run on the emulated board, prints the inputs the
     desktop build of the same C gave (``expected_output.txt``)."""
     if shutil.which("make") is None:
         pytest.skip("the board folder's Makefile needs make")
-    from mpclab.codegen import export
+    from mpclab.cli import board as board_command
 
     board = tmp_path / "board"
-    assert export.main(["--out", str(board), "--steps", "4", "+experiment=bicycle_scheduled",
-                        "scenario=regular_circle_turn"]) == 0
+    assert board_command.main(["--out", str(board), "--steps", "4",
+                               "+experiment=bicycle_scheduled",
+                               "scenario=regular_circle_turn"]) == 0
     assert {p.name for p in board.iterdir()} >= {"mpc_controller.c", "mpc_controller.h",
                                                   "main.c", "Makefile", "README.md"}
     subprocess.run(["make", "-C", str(board)], check=True, capture_output=True, text=True)

@@ -16,13 +16,13 @@ import pandas as pd
 import pytest
 from test_bicycle import controller, ctx, random_target
 
-from mpclab import record
 from mpclab.codegen import build as codegen_build
 from mpclab.codegen.loader import DEFAULT_FLAGS
 from mpclab.codegen.scheduled import QpMethod
 from mpclab.controllers.base import SolveStatus
-from mpclab.controllers.scheduled_c import ScheduledSIL
-from mpclab.errors import ConfigError
+from mpclab.controllers.scheduled.generated_c import ScheduledSIL
+from mpclab.core.errors import ConfigError
+from mpclab.record import files as record
 
 pytestmark = pytest.mark.skipif(codegen_build.find_compiler() is None, reason="no C compiler")
 

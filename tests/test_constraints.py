@@ -9,9 +9,9 @@ import pytest
 from mpclab.constraints.base import Constraint
 from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.scheduled_models import tracking_weights
-from mpclab.errors import ConfigError
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.controllers.scheduled.models import tracking_weights
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.objectives.quadratic import QuadraticTracking

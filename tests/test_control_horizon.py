@@ -24,14 +24,14 @@ from test_bicycle import random_target
 from mpclab.codegen.build import find_compiler
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.blocking import Blocking
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run, compose
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.objectives.rate import InputRate
 from mpclab.plants.zumo import Zumo
+from mpclab.runner.single_run import build_run, compose
 
 X0 = np.array([-10.0, 10.0, 0.0, 0.0, 0.0])
 T = 10

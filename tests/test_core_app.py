@@ -16,9 +16,9 @@ from hydra.errors import ConfigCompositionException, MissingConfigException
 from omegaconf.errors import ConfigKeyError
 
 from conftest import CONF, ROOT, compose_cfg
-from mpclab import record
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run
+from mpclab.core.errors import ConfigError
+from mpclab.record import files as record
+from mpclab.runner.single_run import build_run
 
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 SUMMARY_KEYS = {
@@ -153,7 +153,7 @@ def test_two_runs_of_one_config_give_identical_step_logs(run_cfg) -> None:
 def test_injected_solver_failures_are_survived_and_counted(run_cfg, monkeypatch) -> None:
     import cvxpy as cp
 
-    from mpclab.controllers.cvxpy import CvxpyMPC
+    from mpclab.controllers.cvxpy.mpc import CvxpyMPC
 
     real = CvxpyMPC._solve
     calls = {"n": 0}

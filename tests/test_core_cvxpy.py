@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.cvxpy import CvxpyMPC
-from mpclab.errors import ConfigError
+from mpclab.controllers.cvxpy.mpc import CvxpyMPC
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective, Term
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.plants.kinematic_car import KinematicCar
@@ -140,7 +140,7 @@ def test_direct_path_needs_clarabel_and_known_settings() -> None:
 def test_direct_path_that_cannot_be_built_falls_back_or_refuses(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from mpclab.controllers import cvxpy_direct
+    from mpclab.controllers.cvxpy import direct as cvxpy_direct
 
     def unusable(self, *args, **kwargs):
         raise ValueError("the compiled data disagree with CVXPY's: {'A': 1.0}")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mpclab.lazy import lazy_import
+from mpclab.core.lazy_import import lazy_import
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,8 +43,8 @@ def test_a_casadi_run_imports_neither_cvxpy_nor_the_training_app() -> None:
     # component packages)
     code = (
         "import sys\n"
-        "from mpclab.experiment import build_run, compose\n"
-        "from mpclab.sim import simulate\n"
+        "from mpclab.runner.single_run import build_run, compose\n"
+        "from mpclab.runner.loop import simulate\n"
         "run = build_run(compose(['+experiment=zumo_bug2', 'recorder=none', '+ci=smoke']))\n"
         "simulate(run)\n"
         "print(sorted(m for m in ('cvxpy.atoms', 'scipy.stats', 'scipy.special', 'clarabel',\n"
@@ -58,7 +58,7 @@ def test_a_casadi_run_imports_neither_cvxpy_nor_the_training_app() -> None:
 def test_the_direct_path_status_words_are_cvxpys() -> None:
     import cvxpy as cp
 
-    from mpclab.controllers import cvxpy_direct
+    from mpclab.controllers.cvxpy import direct as cvxpy_direct
 
     assert set(cvxpy_direct._STATUS.values()) == {
         cp.OPTIMAL, cp.OPTIMAL_INACCURATE, cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.plants.kinematic_car import KinematicCar
 
 RNG = np.random.default_rng(0)

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 from conftest import ROOT
-from mpclab.quiet import c_stdout_silenced
+from mpclab.core.native_output import c_stdout_silenced
 
 
 def test_c_level_output_is_silenced_and_restored(capfd) -> None:

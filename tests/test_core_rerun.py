@@ -7,9 +7,9 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from mpclab import record
-from mpclab.experiment import CONF_DIR, build_run, compose
-from mpclab.sim import simulate
+from mpclab.record import files as record
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import CONF_DIR, build_run, compose
 
 CVXPY_VARIANTS = {
     "car_cvxpy-clarabel-direct": ["+experiment=car_cvxpy"],

@@ -10,15 +10,15 @@ import pytest
 from conftest import compose_cfg
 from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.cvxpy import CvxpyMPC
-from mpclab.controllers.cvxpy_sl import model_through
-from mpclab.errors import ConfigError
-from mpclab.experiment import run_experiment
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.controllers.cvxpy.mpc import CvxpyMPC
+from mpclab.controllers.cvxpy.successive_linearization import model_through
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.objectives.rate import InputRate
 from mpclab.plants.zumo import Zumo
+from mpclab.runner.single_run import run_experiment
 
 GOAL = np.array([0.4, 0.4, 0.0])
 X0 = np.array([0.4, 0.8, -np.pi / 2])

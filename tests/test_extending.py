@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from mpclab import record
-from mpclab.__main__ import EXIT_BAD_INPUT, cli
+from mpclab.cli.app import EXIT_BAD_INPUT, cli
 from mpclab.controllers.base import StepContext
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run, compose
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import TermContext
 from mpclab.objectives.terminal_heading import TerminalHeading
-from mpclab.sim import simulate
+from mpclab.record import files as record
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 GUIDE = ROOT / "docs" / "extending.md"
 INCLUDE = re.compile(

@@ -15,17 +15,17 @@ import pytest
 from matplotlib.figure import Figure
 
 from conftest import compose_cfg
-from mpclab import progress as progress_module
-from mpclab import record
-from mpclab.__main__ import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_RUN_FAILED, cli
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.controllers.cvxpy import CvxpyMPC
-from mpclab.controllers.nn import NNController
-from mpclab.controllers.scheduled import ScheduledMPC
-from mpclab.experiment import run_experiment
+from mpclab.cli.app import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_RUN_FAILED, cli
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.controllers.cvxpy.mpc import CvxpyMPC
+from mpclab.controllers.nn.controller import NNController
+from mpclab.controllers.scheduled.mpc import ScheduledMPC
 from mpclab.plants.base import Plant
-from mpclab.progress import RunProgress
-from mpclab.recording.rerun import RerunRecorder
+from mpclab.record import files as record
+from mpclab.recorders.rerun import RerunRecorder
+from mpclab.runner import progress as progress_module
+from mpclab.runner.progress import RunProgress
+from mpclab.runner.single_run import run_experiment
 from mpclab.sweeps.jobs import run_job
 
 BACKENDS = [
@@ -183,7 +183,7 @@ def test_a_full_output_folder_is_one_message_naming_it(monkeypatch, capsys, tmp_
     def full(self, *args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(pq, "write_table", full)  # how mpclab.record writes the step log
+    monkeypatch.setattr(pq, "write_table", full)  # how mpclab.record.files writes the step log
     out = tmp_path / "run"
     code = cli(["+experiment=car_cvxpy", "+ci=smoke", "scenario.t_max=0.2",
                 f"hydra.run.dir={out}"])

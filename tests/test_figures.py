@@ -1,7 +1,7 @@
 """The figures answer their run's question, checked by reading each PNG back: its size, that
 it is not blank, the legend entries it must have, units on its axes, no empty panel.
 
-The legends and labels are read from the text chunk :func:`mpclab.figure_file.save_figure`
+The legends and labels are read from the text chunk :func:`mpclab.record.figure_file.save_figure`
 writes into every figure.
 """
 
@@ -15,9 +15,9 @@ import pandas as pd
 import pytest
 
 from mpclab import tables
-from mpclab.figure_file import FigureFile, read_figure
-from mpclab.recording.figures import HIT, LEAVE, PATH_PNG, SERIES_PNG
-from mpclab.registry import COMPONENTS, register_all
+from mpclab.config.registry import COMPONENTS, register_all
+from mpclab.record.figure_file import FigureFile, read_figure
+from mpclab.record.figures import HIT, LEAVE, PATH_PNG, SERIES_PNG
 from mpclab.sweeps.figure import plot_arrival_vs_compute
 
 

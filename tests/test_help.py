@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from mpclab.__main__ import cli
+from mpclab.cli.app import cli
 
 
 def help_of(capsys: pytest.CaptureFixture, *args: str) -> str:
@@ -18,7 +18,7 @@ def test_help_shows_the_experiment_chosen_and_its_controllers_options(capsys) ->
     text = help_of(capsys, "+experiment=car_cvxpy", "controller.horizon=7")
     assert "The config of: +experiment=car_cvxpy controller.horizon=7" in text
     assert "name: car_cvxpy" in text and "horizon: 7" in text
-    assert "Options of controller mpclab.controllers.cvxpy.CvxpyMPC" in text
+    assert "Options of controller mpclab.controllers.cvxpy.mpc.CvxpyMPC" in text
     line = next(ln for ln in text.splitlines() if ln.strip().startswith("max_iterations"))
     assert "truncated" in line  # its meaning, from the constructor's docstring
     assert not any(ln.strip().startswith("plant") for ln in text.splitlines()
@@ -43,7 +43,7 @@ def test_a_mistyped_key_gets_mpclabs_did_you_mean(capsys) -> None:
 
 
 def test_the_end_of_run_line_is_in_words() -> None:
-    from mpclab.__main__ import summary_line
+    from mpclab.cli.app import summary_line
 
     s = {"status": "arrived", "arrival_time_s": 10.4, "n_steps": 52, "solves_converged": 50,
          "solves_truncated": 2, "solver_failures": 0, "compute_median_ms": 1.6052524,
@@ -63,7 +63,7 @@ def test_the_end_of_run_line_is_in_words() -> None:
 
 
 def test_the_end_of_run_line_rounds_to_three_digits() -> None:
-    from mpclab.__main__ import milliseconds, seconds
+    from mpclab.cli.app import milliseconds, seconds
 
     assert [milliseconds(v) for v in (0.0163042, 0.004, 1.6052524, 9.996, 12.34, 123.4)] == [
         "0.0163", "0.00400", "1.61", "10", "12", "123"]

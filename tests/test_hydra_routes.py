@@ -1,13 +1,13 @@
 """Every config route Hydra documents gives each job the config Hydra's own ``main()`` gives.
 
 A differential test: each command line of :data:`COMMANDS` runs twice in this process, once
-through ``python -m mpclab``'s entry point (:func:`mpclab.__main__.cli`: mpclab's sweeper and
+through ``python -m mpclab``'s entry point (:func:`mpclab.cli.app.cli`: mpclab's sweeper and
 pool launcher) and once through a plain ``@hydra.main`` over the same config folder with
 Hydra's basic sweeper and launcher. The task function is replaced in both by one that writes
 what it received (the config, the overrides, the group choices, the job number) into its
 job folder. Both must give the same jobs with the same configs, print the same for
 ``--cfg``/``--info``, or refuse the command with the same cause; and mpclab's preflight
-(:mod:`mpclab.preflight`) must have composed and checked every command that ran (a single
+(:mod:`mpclab.cli.preflight`) must have composed and checked every command that ran (a single
 run: the very config it ran) before Hydra acted on it. A user folder made by the
 test holds an experiment, a layout and a group that exist only there.
 """
@@ -26,9 +26,9 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-import mpclab.__main__ as app
+import mpclab.cli.app as app
 from conftest import CONF
-from mpclab import preflight
+from mpclab.cli import preflight
 
 #: group choices that differ by design: the plain path runs Hydra's own sweeper and launcher
 PLUGIN_GROUPS = ("hydra/launcher", "hydra/sweeper")
@@ -43,7 +43,10 @@ def capture(cfg: DictConfig) -> dict:
         "cfg": OmegaConf.to_container(cfg, resolve=False),
         "num": hc.job.get("num"),
         "task": list(hc.overrides.task),
-        "hydra": [o for o in hc.overrides.hydra if o.split("=")[0] not in PLUGIN_GROUPS],
+        # mpclab's sweepers pin each job's hydra.sweep.dir to the sweep's folder, resolved once
+        # (the jobs of a sweep over experiments would resolve it apart): a designed difference
+        "hydra": [o for o in hc.overrides.hydra
+                  if o.split("=")[0] not in (*PLUGIN_GROUPS, "hydra.sweep.dir")],
         "dirname": hc.job.override_dirname,
         "choices": {k: v for k, v in hc.runtime.choices.items()
                     if not any(g in k for g in PLUGIN_GROUPS)},

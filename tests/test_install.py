@@ -1,6 +1,6 @@
 """The built wheel installs into a fresh virtual environment and runs outside the checkout.
 
-The wheel carries the configs (``conf/`` as ``mpclab/conf``, :data:`mpclab.config.CONF_DIR`),
+The wheel carries the configs (``conf/`` as ``mpclab/conf``, :data:`mpclab.config.root.CONF_DIR`),
 so ``python -m mpclab`` runs every experiment its ``--help`` lists with no source tree in sight
 (the files the configs name, such as the net's weights, ship with them), and a user's own
 folder added with ``-cd`` composes an experiment from the shipped groups.
@@ -42,7 +42,7 @@ def test_the_wheel_runs_outside_the_checkout(tmp_path: Path) -> None:
         "# @package _global_\ndefaults:\n  - car_cvxpy\n  - _self_\nname: mine\n"
         "scenario:\n  t_max: 1.0\n")
     work.mkdir()
-    where = _run([str(python), "-c", "import mpclab.config as c; print(c.CONF_DIR)"], work)
+    where = _run([str(python), "-c", "import mpclab.config.root as c; print(c.CONF_DIR)"], work)
     assert Path(where.stdout.strip()).is_relative_to(env)  # the shipped configs, not ours
     helped = _run([str(python), "-m", "mpclab", "--help"], work).stdout
     listed = re.findall(r"^  (\w+) ", helped.split("Experiments")[1].split("\n\n")[0], re.M)

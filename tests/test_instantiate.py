@@ -15,9 +15,9 @@ import pytest
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from mpclab.errors import ConfigError
-from mpclab.instantiate import _is_flat, build
-from mpclab.registry import register_target
+from mpclab.config.instantiate import _is_flat, build
+from mpclab.config.registry import register_target
+from mpclab.core.errors import ConfigError
 
 
 class Colour(Enum):

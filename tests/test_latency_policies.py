@@ -8,13 +8,13 @@ import pandas as pd
 import pytest
 
 from conftest import compose_cfg
-from mpclab import record
 from mpclab.controllers.base import shift_by
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run
+from mpclab.core.errors import ConfigError
 from mpclab.plants.kinematic_car import KinematicCar
-from mpclab.sim import simulate
-from mpclab.world.realism import SimWorld
+from mpclab.record import files as record
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run
+from mpclab.world.sim_world import SimWorld
 
 BICYCLE_TURN = ["+experiment=bicycle_scheduled", "scenario=turn", "sim=embedded_stm32"]
 

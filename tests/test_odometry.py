@@ -13,12 +13,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mpclab import record
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.plants.kinematic_car import KinematicCar
 from mpclab.plants.zumo import Zumo
+from mpclab.record import files as record
 from mpclab.world.actuators import Actuator
-from mpclab.world.realism import SimWorld
+from mpclab.world.sim_world import SimWorld
 
 ZUMO = ["+experiment=zumo_bug2"]
 

@@ -1,6 +1,6 @@
 """The Pareto front of a sweep (mpclab/tables/pareto.py, mpclab/sweeps/pareto.py): points,
 feasibility, domination, the knee and the shipped default; the files a sweep and
-``python -m mpclab.tables --pareto`` write."""
+``python -m mpclab.cli.tables --pareto`` write."""
 
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ from omegaconf import OmegaConf
 from rerun.chunk import RrdReader
 
 from conftest import ROOT, compose_cfg
-from mpclab.errors import ConfigError
-from mpclab.recording import rerun_blueprint as ent
-from mpclab.recording.merge import entity_name
+from mpclab.cli.tables import main as tables_main
+from mpclab.core.errors import ConfigError
+from mpclab.recorders import rerun_blueprint as ent
+from mpclab.recorders.merge import entity_name
 from mpclab.sweeps.front_replay import FRONT_RECORDING, rerun_command
 from mpclab.sweeps.pareto import point_label
-from mpclab.sweeps.report import main as tables_main
 from mpclab.tables import REPLAYED_RUNS
 from mpclab.tables.pareto import (
     ParetoObjective,

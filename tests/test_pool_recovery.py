@@ -14,8 +14,8 @@ import pytest
 
 from hydra_plugins.mpclab_launcher import pool_launcher, recovery
 from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher, StartMethod
-from mpclab.errors import ConfigError
-from mpclab.stopping import SAME_STOP_S, call_first_on_stop, worker_signals
+from mpclab.core.errors import ConfigError
+from mpclab.core.signals import SAME_STOP_S, call_first_on_stop, worker_signals
 
 CTX = multiprocessing.get_context("fork")
 

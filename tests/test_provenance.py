@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import re
 
-from mpclab import provenance
+from mpclab.record import provenance
 
 
 def test_stamp_names_command_commit_cpu_and_date() -> None:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import compose_cfg
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run
+from mpclab.core.errors import ConfigError
+from mpclab.runner.single_run import build_run
 from mpclab.world.free_space import connected
 from mpclab.world.obstacles import wall
 from mpclab.world.random_layout import random_layout, random_walls

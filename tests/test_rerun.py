@@ -20,15 +20,15 @@ import pytest
 from rerun.chunk import RrdReader
 
 from conftest import compose_cfg
-from mpclab import record
+from mpclab.cli.merge import main as merge_main
 from mpclab.controllers.base import SolveStatus
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run
-from mpclab.recording import rerun_blueprint as ent
-from mpclab.recording.merge import main as merge_main
-from mpclab.recording.merge import run_labels
-from mpclab.recording.rerun import RRD, RerunRecorder
-from mpclab.sim import simulate
+from mpclab.core.errors import ConfigError
+from mpclab.record import files as record
+from mpclab.recorders import rerun_blueprint as ent
+from mpclab.recorders.merge import run_labels
+from mpclab.recorders.rerun import RRD, RerunRecorder
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run
 from mpclab.supervisors.base import Supervisor
 from mpclab.world.scenario import Scenario
 
@@ -260,8 +260,8 @@ def test_labels_from_differing_overrides(tmp_path):
 
 
 def test_recorder_config():
-    assert compose_cfg([]).recorder._target_ == "mpclab.recording.rerun.RerunRecorder"
+    assert compose_cfg([]).recorder._target_ == "mpclab.recorders.rerun.RerunRecorder"
     smoke = compose_cfg(["+experiment=car_cvxpy", "+ci=smoke"])
-    assert smoke.recorder._target_ == "mpclab.recording.base.Recorder"
+    assert smoke.recorder._target_ == "mpclab.recorders.base.Recorder"
     with pytest.raises(ConfigError, match="batch_steps"):
         RerunRecorder(batch_steps=0)

@@ -21,7 +21,7 @@ from omegaconf import OmegaConf
 
 from conftest import CONF
 from hydra_plugins.mpclab_launcher.pool_launcher import PoolLauncher
-from mpclab.registry import COMPONENTS, register_all
+from mpclab.config.registry import COMPONENTS, register_all
 
 register_all()
 #: what the run passes in (instantiate.build's dependencies): not options
@@ -106,8 +106,8 @@ def test_a_yaml_sets_only_what_differs_from_what_it_builds_on(group, stem) -> No
 
 
 def test_the_derived_schema_rejects_what_the_constructor_would() -> None:
-    from mpclab.errors import ConfigError  # noqa: F401  (the bad-input corpus covers messages)
-    from mpclab.experiment import compose
+    from mpclab.core.errors import ConfigError  # noqa: F401  (the bad-input corpus covers messages)
+    from mpclab.runner.single_run import compose
 
     with pytest.raises(Exception, match="horizon"):
         compose(["+experiment=car_cvxpy", "controller.horizon=ten"])

@@ -72,7 +72,7 @@ def test_wall_is_a_row_of_discs() -> None:
 
 def test_obstacle_scenario_hooks() -> None:
     from conftest import compose_cfg
-    from mpclab.experiment import build_run
+    from mpclab.runner.single_run import build_run
 
     cfg = compose_cfg(["+experiment=zumo_potential", "recorder=none"])
     scen = build_run(cfg).scenario
@@ -94,7 +94,7 @@ def test_obstacle_scenario_hooks() -> None:
 
 def test_stall_rule() -> None:
     from conftest import compose_cfg
-    from mpclab.experiment import build_run
+    from mpclab.runner.single_run import build_run
 
     cfg = compose_cfg(["+experiment=zumo_potential", "recorder=none"])
     scen = build_run(cfg).scenario          # window 4 s, progress 0.01 m, displacement 0.05 m
@@ -114,7 +114,7 @@ def test_scenario_metrics_heading_change_and_sign_changes() -> None:
     import pandas as pd
 
     from conftest import compose_cfg
-    from mpclab.experiment import build_run
+    from mpclab.runner.single_run import build_run
 
     scen = build_run(compose_cfg(["+experiment=zumo_potential", "recorder=none"])).scenario
     n = 11                                        # t = 0 .. 2 s, the last row the final state

@@ -38,7 +38,7 @@ def test_sigterm_ends_a_single_run_with_its_record(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
     proc = _start([*LONG_RUN, "scenario.t_max=50000", "progress=true",
                    f"hydra.run.dir={run_dir}"], tmp_path / "console.txt")
-    log = run_dir / "__main__.log"
+    log = run_dir / "mpclab.log"  # hydra.job.name (conf/config.yaml)
     # said once the loop has run 2 s and its estimate is above a minute: the loop is going
     wait_for(lambda: log.exists() and "a long run" in log.read_text(), proc)
     proc.send_signal(signal.SIGTERM)
@@ -58,8 +58,8 @@ import os
 import signal
 import time
 
-from mpclab.recording.base import Recorder
-from mpclab.registry import register_target
+from mpclab.recorders.base import Recorder
+from mpclab.config.registry import register_target
 
 
 @register_target
@@ -101,8 +101,8 @@ import os
 import signal
 from pathlib import Path
 
-from mpclab.recording.base import Recorder
-from mpclab.registry import register_target
+from mpclab.recorders.base import Recorder
+from mpclab.config.registry import register_target
 
 
 @register_target

@@ -13,12 +13,12 @@ import pytest
 from test_rerun import read_rrd, temporal, verify
 
 from conftest import compose_cfg
-from mpclab import record
-from mpclab.errors import ConfigError
-from mpclab.experiment import build_run
+from mpclab.core.errors import ConfigError
 from mpclab.plants.kinematic_car import KinematicCar
-from mpclab.recording import rerun_blueprint as ent
-from mpclab.world.realism import SimWorld
+from mpclab.record import files as record
+from mpclab.recorders import rerun_blueprint as ent
+from mpclab.runner.single_run import build_run
+from mpclab.world.sim_world import SimWorld
 
 CAR = ["+experiment=car_cvxpy"]
 

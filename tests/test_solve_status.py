@@ -8,14 +8,14 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from mpclab import record
 from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
-from mpclab.controllers.casadi import CasadiMPC, read_status
-from mpclab.controllers.casadi_solvers import CALL_FAILED
+from mpclab.controllers.casadi.mpc import CasadiMPC, read_status
+from mpclab.controllers.casadi.solvers import CALL_FAILED
+from mpclab.core.status import PROBLEM_KEY, Problem
 from mpclab.objectives.base import Objective
 from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
-from mpclab.status import PROBLEM_KEY, Problem
+from mpclab.record import files as record
 
 
 def _zumo(**kw) -> CasadiMPC:

@@ -8,7 +8,7 @@ import pytest
 from scipy.special import betaincinv
 from scipy.stats import binom
 
-from mpclab.stats import clopper_pearson
+from mpclab.record.stats import clopper_pearson
 
 CASES = [(0, 10), (3, 10), (10, 10), (50, 50), (37, 50), (1, 1000), (500, 1000), (4000, 5000)]
 

@@ -10,7 +10,7 @@ from hydra.core.utils import JobReturn, JobStatus
 from hydra.types import RunMode
 from omegaconf import OmegaConf
 
-from mpclab import stream
+from mpclab.core import jsonl as stream
 from mpclab.sweeps.callbacks import SweepCallback
 
 

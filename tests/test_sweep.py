@@ -21,8 +21,8 @@ import yaml
 from hydra.errors import HydraException
 
 from conftest import ROOT, compose_cfg, wait_for
-from mpclab.figure_file import read_figure
-from mpclab.stopping import SAME_STOP_S
+from mpclab.core.signals import SAME_STOP_S
+from mpclab.record.figure_file import read_figure
 
 pytestmark = pytest.mark.slow
 
@@ -135,7 +135,7 @@ from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
 
-from mpclab.registry import register_target
+from mpclab.config.registry import register_target
 
 MARKS = Path({marks!r})
 

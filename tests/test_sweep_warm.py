@@ -1,9 +1,8 @@
-"""Warm sweep workers: a shared tree gives Hydra's config, reused components repeat a run.
+"""Warm sweep workers: reused components repeat a run.
 
-A sweep worker composes each job from a tree shared by the jobs that differ only in values
-(mpclab.sweeps.compose) and reuses the plant, objective and controller of an earlier job of
-the same structure (mpclab.warm). Both must be invisible in the results: the config is
-Hydra's own, and a run on a reused controller is the run a freshly built one makes.
+A sweep worker reuses the plant, objective and controller of an earlier job of the same
+structure (mpclab.runner.component_cache). That must be invisible in the results: a run on a reused
+controller is the run a freshly built one makes.
 """
 
 from __future__ import annotations
@@ -13,18 +12,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from hydra.errors import ConfigCompositionException
-from hydra.types import RunMode
-from omegaconf import OmegaConf
 
-from conftest import CONF
-from mpclab import record
-from mpclab.experiment import compose, run_experiment
-from mpclab.registry import register_all
-from mpclab.sweeps.compose import JobComposer
-from mpclab.warm import ComponentCache, structure_key
+from mpclab.record import files as record
+from mpclab.runner.component_cache import ComponentCache, structure_key
+from mpclab.runner.single_run import compose, run_experiment
 
 JOBS = [
     ["+experiment=zumo_bug2", "scenario=zumo_random", "seed=3", "recorder=none"],
@@ -33,46 +24,6 @@ JOBS = [
     ["+experiment=car_cvxpy", "controller=casadi", "seed=1", "+tag=a", "~tag"],
     ["+experiment=car_cvxpy", "seed=2", "figures.enabled=false"],
 ]
-
-
-@pytest.fixture
-def loader():
-    register_all()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        yield GlobalHydra.instance().config_loader()
-
-
-def test_a_shared_tree_gives_hydras_job_config(loader) -> None:
-    master = loader.load_configuration(
-        "config", ["+experiment=car_cvxpy", "hydra.launcher.n_jobs=2"], RunMode.MULTIRUN)
-    composer = JobComposer(loader, master)
-    for overrides in [*JOBS, *JOBS]:  # the second round from the kept trees
-        want = loader.load_sweep_config(master, list(overrides))
-        got = composer.job_config(overrides)
-        assert OmegaConf.to_yaml(got) == OmegaConf.to_yaml(want), overrides
-        task = [k for k in want if k != "hydra"]
-        assert (OmegaConf.to_container(OmegaConf.masked_copy(got, task), resolve=True)
-                == OmegaConf.to_container(OmegaConf.masked_copy(want, task), resolve=True))
-        assert got._get_flag("struct") == want._get_flag("struct")
-    # each job gets its own copy
-    a = composer.job_config(JOBS[0])
-    a.seed = 99
-    assert composer.job_config(JOBS[0]).seed == 3
-
-
-@pytest.mark.parametrize("bad", ["controller.horizon=ten", "controller.nope=1",
-                                 "scenario=nowhere", "+seed=1", "~nope", "~seed=5",
-                                 "nope@pkg=a"])
-def test_a_shared_tree_fails_as_hydra_does(loader, bad: str) -> None:
-    master = loader.load_configuration("config", ["+experiment=car_cvxpy"], RunMode.MULTIRUN)
-    composer = JobComposer(loader, master)
-    composer.job_config(["+experiment=car_cvxpy", "seed=0"])  # a kept tree
-    overrides = ["+experiment=car_cvxpy", bad]
-    with pytest.raises(ConfigCompositionException) as want:
-        loader.load_sweep_config(master, overrides)
-    with pytest.raises(ConfigCompositionException) as got:
-        composer.job_config(overrides)
-    assert str(got.value) == str(want.value)
 
 
 def _steps(run_dir: Path) -> pd.DataFrame:

@@ -14,8 +14,9 @@ import pandas as pd
 import pytest
 import yaml
 
-from mpclab import record, tables
-from mpclab.sweeps import report
+from mpclab import tables
+from mpclab.cli import tables as report
+from mpclab.record import files as record
 
 
 def _run(
@@ -235,7 +236,7 @@ def test_safety_bench_table_pairs_rates_and_lists_failed_seeds() -> None:
     import importlib.util
     import sys
 
-    from mpclab.stats import clopper_pearson
+    from mpclab.record.stats import clopper_pearson
 
     path = Path(__file__).resolve().parents[1] / "experiments" / "safety" / "bench.py"
     spec = importlib.util.spec_from_file_location("safety_bench", path)

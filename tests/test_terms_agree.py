@@ -7,7 +7,7 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import TermContext
 from mpclab.objectives.quadratic import QuadraticTracking
 from mpclab.objectives.rate import InputRate

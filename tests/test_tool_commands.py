@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from mpclab.approx import dataset, export_c, pipeline, train
-from mpclab.recording import merge
-from mpclab.sweeps import report
+from mpclab.cli import merge
+from mpclab.cli import tables as report
 
 #: (command, its arguments, strings the message must hold); ``{tmp}``: a folder holding
 #: ``empty/`` (a folder with nothing in it) and ``not_weights.npz`` (text)

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from mpclab import record
-from mpclab.__main__ import EXIT_BAD_INPUT, cli
+from mpclab.cli.app import EXIT_BAD_INPUT, cli
+from mpclab.record import files as record
 
 CAR = ["+experiment=car_cvxpy", "recorder=none", "figures.enabled=false", "scenario.t_max=0.2"]
 

@@ -1,5 +1,5 @@
-"""Study B's closed-loop outcomes (Figs. 4-8), issue 12's acceptance of the main command and
-BUG2 on random layouts."""
+"""Study B's closed-loop outcomes (Figs. 4-8, docs/studies.md), the main command's and BUG2's
+on random layouts."""
 
 from __future__ import annotations
 

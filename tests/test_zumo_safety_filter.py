@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mpclab.controllers.safety_filter import SafetyFilter
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.plants.zumo import Zumo
 
 PLANT = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})

@@ -35,8 +35,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Circle, FancyArrowPatch, Polygon  # noqa: E402
 
 import mpclab  # noqa: E402
-from mpclab.figure_file import save_figure  # noqa: E402
-from mpclab.instantiate import build  # noqa: E402
+from mpclab.config.instantiate import build  # noqa: E402
+from mpclab.record.figure_file import save_figure  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 

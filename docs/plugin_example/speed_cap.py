@@ -12,7 +12,7 @@ from typing import Any
 
 import casadi as ca
 
-from mpclab.errors import ConfigError, number
+from mpclab.core.errors import ConfigError, number
 from mpclab.objectives.base import Term, TermContext
 
 

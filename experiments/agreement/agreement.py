@@ -45,14 +45,14 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+from mpclab.config.instantiate import build  # noqa: E402
 from mpclab.controllers.base import StepContext, terminal_rows  # noqa: E402
 from mpclab.controllers.blocking import Blocking  # noqa: E402
-from mpclab.experiment import build_run, compose  # noqa: E402
-from mpclab.instantiate import build  # noqa: E402
 from mpclab.objectives.base import Objective, TermContext  # noqa: E402
 from mpclab.plants.base import Plant  # noqa: E402
-from mpclab.provenance import write_stamped  # noqa: E402
-from mpclab.sim import simulate  # noqa: E402
+from mpclab.record.provenance import write_stamped  # noqa: E402
+from mpclab.runner.loop import simulate  # noqa: E402
+from mpclab.runner.single_run import build_run, compose  # noqa: E402
 
 #: IPOPT for the reference: tight, never stopping at the "acceptable" level, many iterations
 REF_OPTIONS = {

@@ -52,13 +52,13 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nlp_score import REF_FEAS, SAME, VIOL_FLAG, NlpScorer, posed_nlp  # noqa: E402
 
-from mpclab import record  # noqa: E402
+from mpclab.config.instantiate import build  # noqa: E402
 from mpclab.controllers.base import Controller, ControlStep, StepContext, input_vector  # noqa: E402
-from mpclab.experiment import build_run, compose  # noqa: E402
-from mpclab.instantiate import build  # noqa: E402
-from mpclab.provenance import stamp  # noqa: E402
-from mpclab.sim import Run, sense, simulate  # noqa: E402
-from mpclab.status import SolveStatus  # noqa: E402
+from mpclab.core.status import SolveStatus  # noqa: E402
+from mpclab.record import files as record  # noqa: E402
+from mpclab.record.provenance import stamp  # noqa: E402
+from mpclab.runner.loop import Run, sense, simulate  # noqa: E402
+from mpclab.runner.single_run import build_run, compose  # noqa: E402
 
 #: backend label -> overrides on top of the experiment
 BACKENDS: dict[str, list[str]] = {

@@ -33,12 +33,12 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[2]
 
-from mpclab import record  # noqa: E402
 from mpclab.controllers.base import Controller, ControlStep, StepContext  # noqa: E402
-from mpclab.experiment import build_run, compose  # noqa: E402
-from mpclab.provenance import write_stamped  # noqa: E402
-from mpclab.quiet import c_stdout_silenced  # noqa: E402
-from mpclab.sim import simulate  # noqa: E402
+from mpclab.core.native_output import c_stdout_silenced  # noqa: E402
+from mpclab.record import files as record  # noqa: E402
+from mpclab.record.provenance import write_stamped  # noqa: E402
+from mpclab.runner.loop import simulate  # noqa: E402
+from mpclab.runner.single_run import build_run, compose  # noqa: E402
 
 QUIET = ["recorder=none", "figures.enabled=false", "progress=false"]
 RTI = ["controller=casadi_rti"]

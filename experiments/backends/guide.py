@@ -33,11 +33,11 @@ sys.path.insert(0, str(ROOT / "experiments" / "agreement"))
 import agreement  # noqa: E402
 import zumo_nlp  # noqa: E402
 
-from mpclab import record  # noqa: E402
-from mpclab.experiment import build_run, compose  # noqa: E402
-from mpclab.provenance import write_stamped  # noqa: E402
-from mpclab.quiet import c_stdout_silenced  # noqa: E402
-from mpclab.sim import CPU_COLUMN, simulate  # noqa: E402
+from mpclab.core.native_output import c_stdout_silenced  # noqa: E402
+from mpclab.record import files as record  # noqa: E402
+from mpclab.record.provenance import write_stamped  # noqa: E402
+from mpclab.runner.loop import CPU_COLUMN, simulate  # noqa: E402
+from mpclab.runner.single_run import build_run, compose  # noqa: E402
 
 QUIET = ["recorder=none", "progress=false", "figures.enabled=false", "sim=nominal"]
 BIKE = ["plant=dynamic_bicycle", "objective=bicycle_tracking", "controller.horizon=32",

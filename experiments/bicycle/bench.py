@@ -22,11 +22,11 @@ import pandas as pd
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
+from mpclab.config.instantiate import build  # noqa: E402
 from mpclab.controllers.base import StepContext  # noqa: E402
-from mpclab.experiment import build_run, run_experiment  # noqa: E402
-from mpclab.experiment import compose as compose_cfg  # noqa: E402
-from mpclab.instantiate import build  # noqa: E402
-from mpclab.provenance import stamped  # noqa: E402
+from mpclab.record.provenance import stamped  # noqa: E402
+from mpclab.runner.single_run import build_run, run_experiment  # noqa: E402
+from mpclab.runner.single_run import compose as compose_cfg  # noqa: E402
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
 MODES = {"switched": "bicycle_scheduled", "interpolated": "bicycle_interpolated",

@@ -16,8 +16,8 @@ import pandas as pd  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
-from mpclab.experiment import build_run  # noqa: E402
-from mpclab.experiment import compose as compose_cfg  # noqa: E402
+from mpclab.runner.single_run import build_run  # noqa: E402
+from mpclab.runner.single_run import compose as compose_cfg  # noqa: E402
 
 SCENARIOS = ("control_y_V", "regular_circle_turn", "turn")
 MODES = ("switched", "interpolated", "adaptive")

@@ -27,11 +27,11 @@ import numpy as np
 import pandas as pd
 
 from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
-from mpclab.controllers.cvxpy import CvxpyMPC
-from mpclab.experiment import build_run, compose
+from mpclab.controllers.cvxpy.mpc import CvxpyMPC
 from mpclab.objectives.base import TermContext
-from mpclab.provenance import write_stamped
-from mpclab.sim import simulate
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 
 class RebuildEveryStep(CvxpyMPC):

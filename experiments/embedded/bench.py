@@ -32,10 +32,10 @@ from mpclab.codegen import cycles, pil
 from mpclab.codegen.build import find_compiler
 from mpclab.codegen.loader import DEFAULT_FLAGS
 from mpclab.controllers.base import StepContext
-from mpclab.experiment import build_run
-from mpclab.experiment import compose as compose_cfg
-from mpclab.provenance import write_stamped
-from mpclab.sim import simulate
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run
+from mpclab.runner.single_run import compose as compose_cfg
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = ((32, 1), (16, 1), (32, 4), (16, 4))

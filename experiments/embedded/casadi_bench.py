@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpclab.experiment import build_run, compose
-from mpclab.provenance import write_stamped
-from mpclab.sim import simulate
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 _spec = importlib.util.spec_from_file_location(
     "car_cvxpy_bench", Path(__file__).resolve().parents[1] / "car_cvxpy" / "bench.py")

@@ -31,13 +31,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpclab import record
 from mpclab.codegen import cycles, pil
 from mpclab.codegen.step_model import ITERATION_CAP
-from mpclab.experiment import build_run
-from mpclab.experiment import compose as compose_cfg
-from mpclab.provenance import write_stamped
-from mpclab.sim import simulate
+from mpclab.record import files as record
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run
+from mpclab.runner.single_run import compose as compose_cfg
 
 HERE = Path(__file__).resolve().parent
 QUIET = ("recorder=none", "progress=false", "figures.enabled=false")

@@ -29,10 +29,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from mpclab.experiment import build_run, compose  # noqa: E402
-from mpclab.provenance import write_stamped  # noqa: E402
-from mpclab.quiet import c_stdout_silenced  # noqa: E402
-from mpclab.sim import simulate  # noqa: E402
+from mpclab.core.native_output import c_stdout_silenced  # noqa: E402
+from mpclab.record.provenance import write_stamped  # noqa: E402
+from mpclab.runner.loop import simulate  # noqa: E402
+from mpclab.runner.single_run import build_run, compose  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 SCALES = (1, 10, 100)

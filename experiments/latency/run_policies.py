@@ -15,10 +15,10 @@ from __future__ import annotations
 import pandas as pd
 from run_latency import run
 
-from mpclab.experiment import build_run, compose
-from mpclab.provenance import stamp
-from mpclab.quiet import c_stdout_silenced
-from mpclab.sim import simulate
+from mpclab.core.native_output import c_stdout_silenced
+from mpclab.record.provenance import stamp
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 TURN = ["+experiment=bicycle_scheduled", "scenario=turn"]
 STM32 = "sim=embedded_stm32"

@@ -25,10 +25,10 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 from mpclab import tables
-from mpclab.instantiate import build
-from mpclab.provenance import write_stamped
-from mpclab.registry import register_all
-from mpclab.stats import clopper_pearson
+from mpclab.config.instantiate import build
+from mpclab.config.registry import register_all
+from mpclab.record.provenance import write_stamped
+from mpclab.record.stats import clopper_pearson
 
 #: the world of a run: its summary's fields (absent or empty: none)
 WORLD = {"localization": "sim_localization", "fix every [s]": "sim_localization_fix.period_s",

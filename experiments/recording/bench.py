@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpclab.experiment import compose, run_experiment
-from mpclab.provenance import write_stamped
-from mpclab.registry import register_all
+from mpclab.config.registry import register_all
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.single_run import compose, run_experiment
 
 RECORDERS = ("none", "rerun")
 

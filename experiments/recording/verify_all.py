@@ -23,11 +23,11 @@ import pandas as pd
 from bench import compose_run, timed_run
 from rerun.chunk import RrdReader
 
-from mpclab.experiment import CONF_DIR as CONF
-from mpclab.provenance import write_stamped
-from mpclab.recording import rerun_blueprint as ent
-from mpclab.recording.rerun import RRD
-from mpclab.registry import register_all
+from mpclab.config.registry import register_all
+from mpclab.record.provenance import write_stamped
+from mpclab.recorders import rerun_blueprint as ent
+from mpclab.recorders.rerun import RRD
+from mpclab.runner.single_run import CONF_DIR as CONF
 
 
 def check(name: str, overrides: list[str], tmp: Path) -> dict:
@@ -71,7 +71,7 @@ def _scenario(cfg):
     """The scenario alone (as ``build_run`` makes it), for its obstacle count."""
     import numpy as np
 
-    from mpclab.instantiate import build
+    from mpclab.config.instantiate import build
 
     plant = build(cfg.plant, "plant")
     rng = np.random.default_rng(cfg.seed)

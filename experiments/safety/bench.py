@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mpclab import record
-from mpclab.experiment import compose, run_experiment
-from mpclab.provenance import stamp
-from mpclab.sim import CPU_COLUMN
-from mpclab.stats import clopper_pearson
+from mpclab.record import files as record
+from mpclab.record.provenance import stamp
+from mpclab.record.stats import clopper_pearson
+from mpclab.runner.loop import CPU_COLUMN
+from mpclab.runner.single_run import compose, run_experiment
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from mpclab.provenance import stamp
+from mpclab.record.provenance import stamp
 
 ROOT = Path(__file__).resolve().parents[2]
 SWEEP = ["+experiment=zumo_bug2", "scenario=zumo_random", "recorder=none",

@@ -5,11 +5,10 @@
 Runs the Zumo sweep job (``+experiment=zumo_bug2 scenario=zumo_random seed=K
 recorder=none figures.enabled=false``) for K = 0, 1, ... twice each, alternating:
 
-* *cold*, as Hydra's joblib launcher still composes
-  it): Hydra composes the config from its defaults tree, and plant, objective and controller
-  are built anew;
-* *warm*, as a job runs on a warm worker of mpclab's pool launcher: the config from the tree
-  its jobs share (:mod:`mpclab.sweeps.compose`), the components reused (:mod:`mpclab.warm`).
+* *cold*, as Hydra's joblib launcher runs it: Hydra composes the config from its defaults
+  tree, and plant, objective and controller are built anew;
+* *warm*, as a job runs on a warm worker of mpclab's pool launcher: the config composed by
+  Hydra as well, the components reused (:mod:`mpclab.runner.component_cache`).
 
 Prints the median seconds of each phase (compose, build, closed loop, write) and the ratio.
 Both variants share the process, so imports are not in either (``import`` is printed once).
@@ -28,10 +27,9 @@ from hydra import initialize_config_dir  # noqa: E402
 from hydra.core.global_hydra import GlobalHydra  # noqa: E402
 from hydra.types import RunMode  # noqa: E402
 
-from mpclab.experiment import CONF_DIR, run_experiment  # noqa: E402
-from mpclab.registry import register_all  # noqa: E402
-from mpclab.sweeps.compose import JobComposer  # noqa: E402
-from mpclab.warm import ComponentCache  # noqa: E402
+from mpclab.config.registry import register_all  # noqa: E402
+from mpclab.runner.component_cache import ComponentCache  # noqa: E402
+from mpclab.runner.single_run import CONF_DIR, run_experiment  # noqa: E402
 
 register_all()
 IMPORT_S = time.perf_counter() - T0
@@ -50,15 +48,11 @@ def main() -> None:
             tempfile.TemporaryDirectory() as tmp:
         loader = GlobalHydra.instance().config_loader()
         master = loader.load_configuration("config", JOB, RunMode.MULTIRUN)
-        composer = JobComposer(loader, master)
         for k in range(args.jobs):
             overrides = [*JOB, f"seed={k}", *args.overrides]
             for variant in ("cold", "warm") if k % 2 == 0 else ("warm", "cold"):
                 t0 = time.perf_counter()
-                if variant == "cold":
-                    cfg = loader.load_sweep_config(master, overrides)
-                else:
-                    cfg = composer.job_config(overrides)
+                cfg = loader.load_sweep_config(master, overrides)
                 compose_s = time.perf_counter() - t0
                 task = {key: cfg[key] for key in cfg if key != "hydra"}
                 cfg = type(cfg)(task)

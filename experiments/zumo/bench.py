@@ -21,9 +21,9 @@ import shutil
 import sys
 from pathlib import Path
 
-from mpclab.experiment import compose, run_experiment
-from mpclab.provenance import write_stamped
-from mpclab.registry import register_all
+from mpclab.config.registry import register_all
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.single_run import compose, run_experiment
 
 HERE = Path(__file__).resolve().parent
 

@@ -30,11 +30,11 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from mpclab.controllers.base import SolveStatus, StepContext
-from mpclab.controllers.casadi import CasadiMPC
-from mpclab.experiment import build_run, compose
-from mpclab.provenance import write_stamped
-from mpclab.quiet import c_stdout_silenced
-from mpclab.sim import simulate
+from mpclab.controllers.casadi.mpc import CasadiMPC
+from mpclab.core.native_output import c_stdout_silenced
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 QPS = ("qpoases", "osqp", "qrqp", "hpipm", "daqp", "piqp", "proxqp")
 

@@ -31,11 +31,11 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from mpclab.config.registry import register_all
 from mpclab.controllers.base import StepContext
-from mpclab.experiment import build_run, compose, run_experiment
 from mpclab.objectives.base import TermContext
-from mpclab.provenance import write_stamped
-from mpclab.registry import register_all
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.single_run import build_run, compose, run_experiment
 
 warnings.filterwarnings("ignore")
 import do_mpc  # noqa: E402

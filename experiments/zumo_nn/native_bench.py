@@ -30,10 +30,10 @@ import pandas as pd
 from mpclab.approx.evaluate import visited_features
 from mpclab.approx.export_c import c_compiler, time_compiled
 from mpclab.controllers.base import ControlStep, SolveStatus
-from mpclab.experiment import build_run, compose
 from mpclab.policy.mlp import MLP
-from mpclab.provenance import write_stamped
-from mpclab.sim import simulate
+from mpclab.record.provenance import write_stamped
+from mpclab.runner.loop import simulate
+from mpclab.runner.single_run import build_run, compose
 
 HERE = Path(__file__).resolve().parent
 FIRST_HELD_OUT_SEED = 100_000

@@ -30,10 +30,9 @@ from threadpoolctl import threadpool_limits
 
 from hydra_plugins.mpclab_launcher.recovery import JobBoard
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
-from mpclab.stopping import worker_signals
-from mpclab.sweeps.compose import JobComposer
+from mpclab.config.allowed_targets import check_config
+from mpclab.core.signals import worker_signals
 from mpclab.sweeps.jobs import WORKERS_VAR
-from mpclab.trust import check_config
 
 log = logging.getLogger(__name__)
 
@@ -47,11 +46,11 @@ _WORKER: dict[str, Any] = {}
 
 def init_worker(
     hydra_context: HydraContext, config: DictConfig, task_function: TaskFunction,
-    composer: JobComposer, singleton_state: dict[Any, Any] | None, threads: int,
-    workers: int, board_cells: Any = None,
+    singleton_state: dict[Any, Any] | None, threads: int, workers: int,
+    board_cells: Any = None,
 ) -> None:
-    """Set up this process to run jobs; ``composer``: the sweep's job configs, with the
-    trees the launching process composed; ``singleton_state``: Hydra's singletons (config
+    """Set up this process to run jobs of the sweep whose config is ``config``;
+    ``singleton_state``: Hydra's singletons (config
     store, runtime, resolvers) for a started worker, None where they are this process's own
     (in the launching process, or forked from it); ``board_cells``: the shared array of the
     pool's :class:`~.recovery.JobBoard`, where a worker notes each job it starts and ends."""
@@ -64,12 +63,12 @@ def init_worker(
         Singleton.set_state(singleton_state)  # and scans Hydra's plugins again
     board = None if board_cells is None else JobBoard(board_cells)
     _WORKER.update(hydra_context=hydra_context, config=config, task_function=task_function,
-                   board=board, composer=composer)
+                   board=board)
 
 
 def init_forked(*args: Any) -> None:
     """:func:`init_worker` for a worker process forked from the launching one, with a
-    worker's signal handling (:func:`~mpclab.stopping.worker_signals`), not the launching
+    worker's signal handling (:func:`~mpclab.core.signals.worker_signals`), not the launching
     process's: SIGTERM and SIGHUP end it (the pool stops a worker with SIGTERM), after the
     job it runs, if any, recorded what it had; SIGINT interrupts its job only."""
     worker_signals()
@@ -104,7 +103,8 @@ def _compose_and_run(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dic
     t0, start, cpu0, faults0 = time.perf_counter(), time.time(), time.process_time(), _faults()
     ctx, config = _WORKER["hydra_context"], _WORKER["config"]
     try:
-        sweep_config = _WORKER["composer"].job_config(overrides)
+        # composed as Hydra composes every job of a sweep (its public config loader)
+        sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
         check_config(sweep_config, app=False)  # its hydra node, before run_job acts on it
     except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
         log.error("job %s cannot be composed: %s", " ".join(overrides), exc)

@@ -10,12 +10,12 @@ dominated a sweep of short jobs. This launcher:
 * pins each worker's BLAS/OpenMP thread pools to ``threads_per_worker`` threads (one job per
   core, no oversubscription);
 * sends a worker only a job's number and overrides; the worker (:mod:`._worker`) composes
-  the job's config (jobs that differ only in values share one tree composed by Hydra:
-  :mod:`mpclab.sweeps.compose`) and runs it with Hydra's ``run_job`` (job folders,
+  the job's config through Hydra's config loader (``load_sweep_config``, as Hydra's own
+  launchers do) and runs it with Hydra's ``run_job`` (job folders,
   ``.hydra/`` files, logging and callbacks as with Hydra's launchers); a config that fails
   to compose becomes the job's error row there (the sweeper does not compose jobs up front);
-* keeps what a worker built between jobs (``mpclab.warm``: the plant, objective and compiled
-  controller of the same structure);
+* keeps what a worker built between jobs (``mpclab.runner.component_cache``: the plant,
+  objective and compiled controller of the same structure);
 * returns each job as soon as it ends and writes ``<sweep>/.mpclab/tasks.jsonl`` (per job:
   worker, time in the worker and the CPU time and minor page faults of that time, time in
   the closed loop);
@@ -74,11 +74,10 @@ from hydra_plugins.mpclab_launcher._worker import (
 )
 from hydra_plugins.mpclab_launcher.recovery import JobBoard, JobTimedOut, Watchdog, each_alone
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
-from mpclab.errors import ConfigError, number, parse_choice, whole_number
-from mpclab.registry import register_schema, schema_from_init
-from mpclab.stopping import Terminated, call_first_on_stop, signal_of
+from mpclab.config.registry import register_schema, schema_from_init
+from mpclab.core.errors import ConfigError, number, parse_choice, whole_number
+from mpclab.core.signals import Terminated, call_first_on_stop, signal_of
 from mpclab.sweeps.callbacks import STATE_DIR
-from mpclab.sweeps.compose import JobComposer
 from mpclab.sweeps.jobs import WORKERS_VAR, usable_cores
 
 log = logging.getLogger(__name__)
@@ -132,7 +131,6 @@ class PoolLauncher(Launcher):
         self.config: DictConfig | None = None
         self.hydra_context: HydraContext | None = None
         self.task_function: TaskFunction | None = None
-        self.composer: JobComposer | None = None
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
               config: DictConfig) -> None:
@@ -167,11 +165,7 @@ class PoolLauncher(Launcher):
         # a forked worker inherits Hydra's singletons, the launching process has them; only a
         # started worker needs a copy (Hydra's get_state deep-copies the config store)
         started = not in_process and self.start_method != "fork"
-        self.composer = JobComposer(self.hydra_context.config_loader, self.config)
-        # each distinct tree composed here, once: the workers inherit it (a tree that fails
-        # to compose fails again in its jobs, each an error row)
-        self.composer.prime(job_overrides)
-        init = (self.hydra_context, self.config, self.task_function, self.composer,
+        init = (self.hydra_context, self.config, self.task_function,
                 Singleton.get_state() if started else None, self.threads, n)
         jobs = list(enumerate(job_overrides, start=initial_job_idx))
         if in_process:
@@ -286,9 +280,9 @@ class PoolLauncher(Launcher):
     def _error_row(self, idx: int, overrides: Sequence[str], exc: Exception,
                    info: dict[str, Any]) -> tuple[JobReturn, dict[str, Any]]:
         """Job ``idx``'s error row, written here (its worker could not write it)."""
-        assert self.composer is not None
         try:  # its config composed in the worker; here it names the job's components
-            job_cfg = self.composer.job_config(overrides)
+            job_cfg = self.hydra_context.config_loader.load_sweep_config(
+                self.config, list(overrides))
             with open_dict(job_cfg):
                 del job_cfg["hydra"]
         except Exception:  # noqa: BLE001  (the row is written all the same)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
-from mpclab.stopping import stoppable_job
+from mpclab.core.signals import stoppable_job
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ class JobBoard:
     @contextlib.contextmanager
     def running(self, slot: int) -> Iterator[None]:
         """Job ``slot`` runs in this worker within this block: noted on the board, and a
-        stop signal interrupts it (:func:`~mpclab.stopping.stoppable_job`: SIGINT, naming
+        stop signal interrupts it (:func:`~mpclab.core.signals.stoppable_job`: SIGINT, naming
         the signal the launcher passes on, SIGTERM and SIGHUP; a worker stopped by one of the
         last two ends after the block). A job that would start once the sweep has stopped
         does not: it raises ``KeyboardInterrupt`` at once (no row; the same command runs

@@ -7,12 +7,12 @@ batches of ``max_batch_size``). Hydra's basic sweeper composes every job's confi
 launching any and aborts the sweep at the first that fails (``controller.horizon=10,ten``);
 this one launches them all, and a job whose config fails to compose becomes a
 ``status: error`` row with Hydra's message in its job folder, reported to the callbacks like a
-finished job; so does a job whose config may not be run (:func:`mpclab.trust.check_config`).
-mpclab's pool launcher composes and checks in its workers and writes those rows itself; for
-any other launcher (joblib, Ray) the jobs are composed and checked here first and the failing
-ones recorded here. Written on Hydra's public ``Sweeper`` plugin interface; lives in the
-``hydra_plugins`` namespace because Hydra instantiates sweepers only from there;
-``conf/hydra/sweeper/tolerant.yaml`` selects it.
+finished job; so does a job whose config may not be run
+(:func:`mpclab.config.allowed_targets.check_config`). mpclab's pool launcher composes and checks in
+its workers and writes those rows itself; for any other launcher (joblib, Ray) the jobs are composed
+and checked here first and the failing ones recorded here. Written on Hydra's public ``Sweeper``
+plugin interface; lives in the ``hydra_plugins`` namespace because Hydra instantiates sweepers only
+from there; ``conf/hydra/sweeper/tolerant.yaml`` selects it.
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from mpclab import record
+from mpclab.config.allowed_targets import check_config
+from mpclab.record import files as record
 from mpclab.sweeps.expand import job_overrides, sweep_dir_override
 from mpclab.sweeps.jobs import error_summary
-from mpclab.trust import check_config
 
 log = logging.getLogger(__name__)
 

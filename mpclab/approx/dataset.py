@@ -1,7 +1,7 @@
 """The NN's training data: a sweep's runs merged into one parquet file.
 
 Generation is a Hydra sweep of an MPC experiment with ``recorder=dataset``
-(:mod:`mpclab.recording.dataset`): one job per start seed, each writing ``dataset.parquet``
+(:mod:`mpclab.recorders.dataset`): one job per start seed, each writing ``dataset.parquet``
 into its run folder; this merges them.
 
     uv run python -m mpclab.approx.dataset OUTPUT_DIR... -o data.parquet
@@ -19,8 +19,8 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from mpclab.errors import exit_on_bad_input
-from mpclab.recording.dataset import ROWS, config_hash
+from mpclab.core.errors import exit_on_bad_input
+from mpclab.recorders.dataset import ROWS, config_hash
 
 
 def run_dirs(paths: list[Path]) -> list[Path]:

@@ -15,12 +15,12 @@ import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
 
-from mpclab import record
 from mpclab.approx.dataset import run_dirs
-from mpclab.experiment import build_run
 from mpclab.objectives.base import TermContext
 from mpclab.policy.features import features
-from mpclab.stats import clopper_pearson
+from mpclab.record import files as record
+from mpclab.record.stats import clopper_pearson
+from mpclab.runner.single_run import build_run
 
 
 def outcomes(sweep: Path) -> pd.DataFrame:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mpclab.codegen.cwriter import c_array
-from mpclab.errors import exit_on_bad_input
+from mpclab.core.errors import exit_on_bad_input
 from mpclab.policy.mlp import MLP, Activation
 
 _C_ACT = {

@@ -33,15 +33,15 @@ import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
 
-from mpclab import record
 from mpclab.approx import dataset, evaluate
 from mpclab.approx.export_c import c_compiler, time_compiled, to_c
 from mpclab.approx.train import TrainConf, train
-from mpclab.errors import exit_on_bad_input
-from mpclab.experiment import build_run, compose
+from mpclab.core.errors import exit_on_bad_input
 from mpclab.policy.mlp import MLP
-from mpclab.provenance import stamp, stamped
-from mpclab.record import jsonable
+from mpclab.record import files as record
+from mpclab.record.files import jsonable
+from mpclab.record.provenance import stamp, stamped
+from mpclab.runner.single_run import build_run, compose
 
 ROOT = Path(__file__).resolve().parents[2]
 STAGES = ("data", "train", "dagger", "eval")
@@ -120,7 +120,7 @@ def expert_cfg(conf: PipelineConf, extra: list[str] = ()) -> Any:
 
 def label(conf: PipelineConf, visited: pd.DataFrame) -> pd.DataFrame:
     """The expert's input at every visited state, warm-started along each visited run."""
-    from mpclab.sim import sense
+    from mpclab.runner.loop import sense
 
     run = build_run(expert_cfg(conf))
     plant, ctrl = run.plant, run.controller

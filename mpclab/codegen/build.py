@@ -90,7 +90,7 @@ def rough(seconds: float) -> str:
 
 def announce(message: str) -> None:
     """Say what long work starts: on standard error at once (the console's log handler may be
-    silenced while a solver is built, see :mod:`mpclab.quiet`) and in the run's log."""
+    silenced while a solver is built, see :mod:`mpclab.core.native_output`) and in the run's log."""
     sys.stderr.write(f"mpclab: {message}\n")
     sys.stderr.flush()
     log.info("%s", message)

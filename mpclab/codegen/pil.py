@@ -28,10 +28,10 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from mpclab import record
 from mpclab.codegen import cycles
 from mpclab.codegen.cwriter import c_array
 from mpclab.codegen.loader import Precision, ScheduledLibrary
+from mpclab.record import files as record
 
 FloatArray = npt.NDArray[np.float64]
 

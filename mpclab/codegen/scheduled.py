@@ -1,6 +1,6 @@
 """The scheduled (multiple linear) MPC as plain C, from the tables its Python twin precomputed.
 
-The Python controller (:class:`mpclab.controllers.scheduled.ScheduledMPC`, switched mode)
+The Python controller (:class:`mpclab.controllers.scheduled.mpc.ScheduledMPC`, switched mode)
 builds, per operating point, the condensed QP's Hessian ``H`` and the maps that give its
 gradient ``g = Kx x + kc - Kr ref`` (shifted by ``k g_shift`` when the heading is ``k`` turns
 from the point's), and per step picks the nearest point, forms ``g`` and solves the box QP.

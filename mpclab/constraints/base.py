@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.expressible import Expressible
+from mpclab.config.expressible import Expressible
 
 #: backend name -> the Constraint method that expresses a constraint for it
 BACKEND_METHODS = {"casadi": "casadi_rows", "cvxpy": "cvxpy_rows"}
@@ -56,7 +56,7 @@ class Constraint(Expressible):
 
     def declare(self, params: Any, n_points: int) -> dict[str, Any]:
         """Declare this constraint's per-step parameters on ``params`` (a
-        :class:`~mpclab.controllers.casadi_ocp.Params`); return ``{name: symbol}``."""
+        :class:`~mpclab.controllers.casadi.ocp.Params`); return ``{name: symbol}``."""
         return {}
 
     def values(self, x0: Any, detections: Any, mask: Any) -> dict[str, Any]:

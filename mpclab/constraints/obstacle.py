@@ -49,8 +49,8 @@ import casadi as ca
 import numpy as np
 
 from mpclab.constraints.base import Constraint
-from mpclab.errors import ConfigError, number, parse_choice
-from mpclab.lazy import lazy_import
+from mpclab.core.errors import ConfigError, number, parse_choice
+from mpclab.core.lazy_import import lazy_import
 
 cp = lazy_import("cvxpy")  # about 0.6 s to import: paid only by runs that use it
 

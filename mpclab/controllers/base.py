@@ -20,10 +20,10 @@ import numpy as np
 import numpy.typing as npt
 
 from mpclab.controllers.blocking import Blocking
-from mpclab.errors import ConfigError, number
+from mpclab.core.errors import ConfigError, number
+from mpclab.core.signals import interrupted
+from mpclab.core.status import USABLE, Problem, SolveStatus
 from mpclab.plants.base import Plant
-from mpclab.status import USABLE, Problem, SolveStatus
-from mpclab.stopping import interrupted
 
 FloatArray = npt.NDArray[np.float64]
 

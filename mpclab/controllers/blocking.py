@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -2,7 +2,7 @@
 
 The detected points are padded to the room the problem has for them (the nearest kept), and
 the soft constraints' slacks are summed up for the run record. CasADi
-(:mod:`mpclab.controllers.casadi`) and CVXPY (:mod:`mpclab.controllers.cvxpy`) both call
+(:mod:`mpclab.controllers.casadi.mpc`) and CVXPY (:mod:`mpclab.controllers.cvxpy.mpc`) both call
 these.
 """
 

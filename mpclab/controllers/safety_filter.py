@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import ConfigError, number
-from mpclab.registry import component
+from mpclab.config.registry import component
+from mpclab.core.errors import ConfigError, number
 
 FloatArray = np.ndarray
 

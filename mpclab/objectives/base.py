@@ -13,10 +13,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from mpclab.config.expressible import Expressible
+from mpclab.config.registry import component
 from mpclab.constraints.base import Constraint
-from mpclab.errors import ConfigError
-from mpclab.expressible import Expressible
-from mpclab.registry import component
+from mpclab.core.errors import ConfigError
 
 #: backend name -> the Term method that expresses a term for it
 BACKEND_METHODS = {"cvxpy": "cvxpy_cost", "casadi": "casadi_cost"}

@@ -25,7 +25,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from mpclab.errors import ConfigError, number
+from mpclab.core.errors import ConfigError, number
 from mpclab.objectives.base import Term, TermContext
 
 

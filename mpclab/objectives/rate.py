@@ -13,8 +13,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from mpclab.errors import ConfigError, number
-from mpclab.lazy import lazy_import
+from mpclab.core.errors import ConfigError, number
+from mpclab.core.lazy_import import lazy_import
 from mpclab.objectives.base import Term, TermContext
 
 cp = lazy_import("cvxpy")

@@ -10,7 +10,7 @@ from typing import Any
 
 import casadi as ca
 
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.objectives.base import Term, TermContext
 
 

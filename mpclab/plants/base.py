@@ -23,7 +23,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import check_keys, number
+from mpclab.core.errors import check_keys, number
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -261,7 +261,7 @@ def register_plant(name: str) -> Any:
     The schema has ``params`` (typed by the plant's own ``Params`` dataclass, so a typo'd
     parameter fails at compose time), ``state_bounds``, ``input_bounds`` and ``substeps``.
     """
-    from mpclab.registry import component, target
+    from mpclab.config.registry import component, target
 
     def deco(cls: type[Plant]) -> type[Plant]:
         schema = dataclasses.make_dataclass(

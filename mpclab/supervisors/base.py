@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.registry import component
+from mpclab.config.registry import component
 
 FloatArray = npt.NDArray[np.float64]
 #: the scenario's arrival rule: whether a state is at the goal

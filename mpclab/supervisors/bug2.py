@@ -37,10 +37,10 @@ from types import MappingProxyType
 
 import numpy as np
 
-from mpclab.errors import ConfigError, number, parse_choice
+from mpclab.config.registry import component
+from mpclab.core.errors import ConfigError, number, parse_choice
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
-from mpclab.registry import component
 from mpclab.supervisors.base import Arrival, FloatArray, Supervisor
 from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
 

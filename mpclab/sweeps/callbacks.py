@@ -24,8 +24,9 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from mpclab import stream, tables
-from mpclab.registry import register_target
+from mpclab import tables
+from mpclab.config.registry import register_target
+from mpclab.core import jsonl as stream
 from mpclab.sweeps.expand import job_overrides
 
 log = logging.getLogger("mpclab.sweep")
@@ -79,7 +80,7 @@ def interrupted_sweep() -> str | None:
         tables = f"their tables (and the interrupted jobs' rows) are in {sweep_dir}"
     except Exception as exc:  # noqa: BLE001  (the rows stay; the tool makes them later)
         log.warning("sweep: no tables written (%s)", exc)
-        tables = f"`python -m mpclab.tables {sweep_dir}` makes the tables so far"
+        tables = f"`python -m mpclab.cli.tables {sweep_dir}` makes the tables so far"
     return (f"{done}{of} jobs of the sweep in {sweep_dir} are done and recorded; {tables}; "
             "the same command resumes it (skipping them)")
 
@@ -239,7 +240,7 @@ class SweepCallback(Callback):
             meta.update(jobs_end=jobs_end, report_s=time.perf_counter() - t0)
             (state / SWEEP_FILE).write_text(json.dumps(meta))
         df = report.runs
-        if df.empty:  # the command fails with this line (mpclab.__main__)
+        if df.empty:  # the command fails with this line (mpclab.cli.app)
             _ALL_FAILED[:] = [f"the sweep wrote no run record: none found below {sweep_dir}"]
             return
         counts = df["status"].value_counts().to_dict()

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from mpclab.figure_file import save_figure
-from mpclab.lazy import pyplot
+from mpclab.core.lazy_import import pyplot
+from mpclab.record.figure_file import save_figure
 from mpclab.tables import XAxis, group_keys, numeric_column
 
 #: per x axis: (wall column, CPU column, label, unit)

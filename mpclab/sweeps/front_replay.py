@@ -1,10 +1,10 @@
 """A sweep's Pareto front replayed side by side: its points' recordings merged into one file.
 
-``python -m mpclab.tables --pareto DIR --rerun`` (or ``rerun: true`` beside the objectives in
+``python -m mpclab.cli.tables --pareto DIR --rerun`` (or ``rerun: true`` beside the objectives in
 ``hydra.callbacks.sweep.pareto``, at the end of a sweep) writes ``DIR/pareto_front.rrd``: for
 each front point the recording of its first seed (the lowest), under a prefix named by the
 point's parameters (``casadi_fatrop_horizon_6_control_horizon_2``), the maps side by side and
-the signals overlaid (:mod:`mpclab.recording.merge`). Open it with ``uv run rerun FILE``.
+the signals overlaid (:mod:`mpclab.recorders.merge`). Open it with ``uv run rerun FILE``.
 
 A point whose run was recorded (its ``run.rrd``) is taken as it is. The Pareto sweeps run
 without a recorder (``recorder=none``), so the others are run again, one process each: the
@@ -30,9 +30,10 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from mpclab import record, tables
-from mpclab.recording.merge import entity_name, merge, run_overrides
-from mpclab.recording.rerun import RRD
+from mpclab import tables
+from mpclab.record import files as record
+from mpclab.recorders.merge import entity_name, merge, run_overrides
+from mpclab.recorders.rerun import RRD
 from mpclab.sweeps.pareto import point_label
 from mpclab.tables.pareto import first_seed_runs, front
 

@@ -19,13 +19,13 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from mpclab import record
-from mpclab.errors import bad_input_message
-from mpclab.origin import RunOrigin
-from mpclab.registry import TARGETS
-from mpclab.stopping import interrupted, stopped_by
+from mpclab.config.key_origin import RunOrigin
+from mpclab.config.registry import TARGETS
+from mpclab.core.errors import bad_input_message
+from mpclab.core.signals import interrupted, stopped_by
+from mpclab.record import files as record
+from mpclab.runner.component_cache import WORKER_CACHE
 from mpclab.tables import override_key
-from mpclab.warm import WORKER_CACHE
 
 log = logging.getLogger("mpclab.sweep")
 
@@ -158,10 +158,10 @@ def run_job(
         from a loaded machine can be told apart (:func:`mpclab.tables.contended`).
 
     Plant, objective and controller are reused from an earlier job of this process with the
-    same structure (:mod:`mpclab.warm`).
+    same structure (:mod:`mpclab.runner.component_cache`).
     """
-    from mpclab.experiment import run_experiment
-    from mpclab.sim import RunInterrupted
+    from mpclab.runner.loop import RunInterrupted
+    from mpclab.runner.single_run import run_experiment
 
     overrides = list(overrides)
     if cfg.get("resume", True):

@@ -6,7 +6,7 @@ and each objective's spread over the seeds), ``pareto_points.csv`` every point, 
 joined and numbered (the numbers named below the axes), the shipped default marked, the
 knee ringed. The multirun callback
 writes them when a sweep whose config asks for a front ends (``hydra.callbacks.sweep.pareto``,
-the ``sweep=pareto_*`` configs); ``python -m mpclab.tables --pareto DIR`` writes them for any
+the ``sweep=pareto_*`` configs); ``python -m mpclab.cli.tables --pareto DIR`` writes them for any
 sweep folder. What a point, the front, the knee and the default are:
 :mod:`mpclab.tables.pareto`.
 """
@@ -23,8 +23,8 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 from mpclab import tables
-from mpclab.lazy import pyplot
-from mpclab.registry import COMPONENTS, register_all, target
+from mpclab.config.registry import COMPONENTS, register_all, target
+from mpclab.core.lazy_import import pyplot
 from mpclab.tables.pareto import (
     LABELS,
     ParetoObjective,

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mpclab.figure_file import save_figure
-from mpclab.lazy import pyplot
+from mpclab.core.lazy_import import pyplot
+from mpclab.record.figure_file import save_figure
 
 
 def robustness_levels(df: pd.DataFrame) -> list[str]:

@@ -7,7 +7,7 @@ A run folder without a readable ``summary.json`` is kept as a row with status ``
 A sweep streams its rows: as each job ends, :func:`stream_row` appends the job's row (and
 its controller calls' solve times, for the grouped table) to ``<sweep>/.mpclab/rows.jsonl``,
 so :func:`collect_runs` reads one file instead of every job's folder, and a sweep that dies
-keeps every finished row. ``python -m mpclab.tables`` (:mod:`mpclab.sweeps.report`) writes
+keeps every finished row. ``python -m mpclab.cli.tables`` (:mod:`mpclab.sweeps.report`) writes
 the tables and the figure for any folders.
 """
 
@@ -24,8 +24,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from mpclab import record, stream
-from mpclab.provenance import stamped
+from mpclab.core import jsonl as stream
+from mpclab.record import files as record
+from mpclab.record.provenance import stamped
 from mpclab.tables.groups import (
     _step_times_ms,
     group_keys,

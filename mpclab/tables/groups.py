@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab import record
-from mpclab.stats import clopper_pearson
-from mpclab.status import SOLVE_KEYS, SolveStatus
+from mpclab.core.status import SOLVE_KEYS, SolveStatus
+from mpclab.record import files as record
+from mpclab.record.stats import clopper_pearson
 
 #: parameters never grouped by: repetitions of the same configuration
 NOT_GROUPED = ("seed",)

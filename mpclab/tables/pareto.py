@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab import record
-from mpclab.errors import ConfigError, parse_choice
+from mpclab.core.errors import ConfigError, parse_choice
+from mpclab.record import files as record
 from mpclab.tables.groups import NOT_GROUPED, numeric_column
 
 

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mpclab.errors import number
+from mpclab.core.errors import number
 from mpclab.plants.base import FloatArray
 
 #: the longest piece of constant input, as fractions of the time constant and the period

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.lazy import lazy_import
+from mpclab.core.lazy_import import lazy_import
 
 ndimage = lazy_import("scipy.ndimage")  # 0.25 s to import: paid by random layouts only
 

@@ -1,6 +1,6 @@
 """When a controller's input acts (``sim.latency``, ``sim.deadline_policy``): the choices and
 the recorded latency profiles they draw from (the loop's timing itself is
-:class:`mpclab.world.realism.SimWorld`'s)."""
+:class:`mpclab.world.sim_world.SimWorld`'s)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab.config import CONF_DIR, config_file
-from mpclab.errors import ConfigError, number, parse_choice
+from mpclab.config.root import CONF_DIR, config_file
+from mpclab.core.errors import ConfigError, number, parse_choice
 from mpclab.plants.base import FloatArray
 
 

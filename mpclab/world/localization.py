@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import ConfigError, check_keys, number
+from mpclab.core.errors import ConfigError, check_keys, number
 from mpclab.plants.base import FloatArray, Plant
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError, check_keys, number
+from mpclab.core.errors import ConfigError, check_keys, number
 
 FloatArray = npt.NDArray[np.float64]
 

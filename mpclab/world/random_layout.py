@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import ConfigError, check_keys
+from mpclab.core.errors import ConfigError, check_keys
 from mpclab.world.free_space import connected
 from mpclab.world.obstacles import FloatArray, wall
 

@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpclab import record
-from mpclab.errors import ConfigError
+from mpclab.config.registry import component
+from mpclab.core.errors import ConfigError
 from mpclab.plants.base import Plant
-from mpclab.registry import component
+from mpclab.record import files as record
 from mpclab.world.scenario import ArrivalConf, FloatArray, Scenario
 
 #: times or arc lengths: a scalar, a sequence or an array

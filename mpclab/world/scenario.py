@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError, number
+from mpclab.config.registry import component
+from mpclab.core.errors import ConfigError, number
 from mpclab.plants.base import Plant
-from mpclab.registry import component
 
 FloatArray = npt.NDArray[np.float64]
 

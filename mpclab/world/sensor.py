@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from mpclab.errors import ConfigError, number
+from mpclab.core.errors import ConfigError, number
 
 FloatArray = npt.NDArray[np.float64]
 

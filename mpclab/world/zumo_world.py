@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.errors import ConfigError, number
+from mpclab.config.registry import component
+from mpclab.core.errors import ConfigError, number
 from mpclab.plants.base import Plant
-from mpclab.registry import component
 from mpclab.world.obstacles import WallConf, layout
 from mpclab.world.random_layout import RandomLayoutConf, random_layout
 from mpclab.world.scenario import FloatArray, Scenario, ScenarioConf

@@ -1,0 +1,393 @@
+"""How the simulated world differs from the controller's model (the ``sim`` config group).
+
+``sim=nominal`` is the ideal loop: the controller sees the true state, its input acts at the
+instant the state was measured, and the simulator integrates the controller's own model.
+:class:`SimWorld` adds, each on its own key:
+
+* **latency** (``latency``: ``none``, ``measured``, a number of ms, ``one_sample`` or
+  ``recorded``; ``latency_scale``): the input computed from the state at ``t_k`` acts from
+  ``t_k + tau``; the input applied before it holds until then, and the step is integrated
+  in two pieces across the switch. ``one_sample`` is the fixed one-sample delay of embedded
+  loops: the controller computes during ``[t_k, t_k+1)`` from the state predicted at
+  ``t_k+1`` and its input acts from ``t_k+1``, however long the solve took. ``recorded``
+  draws each latency, seeded, from a recorded distribution (``latency_profile``: a CSV or
+  Parquet file with a ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run
+  repeats exactly; ``measured`` is the run's own solve time, which differs from run to run
+  (the part of the call before its input, ``feedback_s``, for a controller that prepares
+  its next solve after it: the real-time iteration); ``modelled`` is each call's time on the
+  board the controller models (``Controller.board_time_model``: the scheduled controller's
+  generated C on the F401RE, ``sim=embedded_m4``).
+  A solve whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control
+  period) is a deadline miss, and ``deadline_policy`` says what happens: ``hold`` (its input
+  never acts; the applied one holds), ``plan`` (its input never acts; the next input of the
+  last plan that met its deadline does) or ``late_apply`` (its input acts when it is ready,
+  and the board is busy until then: the next solve starts at the first sample after it, the
+  samples between are skipped).
+* **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
+  any plant's, ``noise.range_std``): the controller
+  and the supervisor see a noisy state; range readings are taken from the true pose, get
+  noise, and become obstacle points placed from the *measured* pose.
+* **process disturbance** (``disturbance.state_std.<label>``, per square-root second): a
+  random walk added to the true state, ``N(0, std^2 dt)`` per control period.
+* **model mismatch** (``plant_params.<name>``, ``substeps``): the simulated plant has other
+  parameters (and a finer integrator) than the one the controller predicts with; the same
+  ``rhs``.
+* **localization** (``localization``: ``truth`` or ``odometry``; ``odometry``,
+  ``localization_fix``): the state the controller and the supervisor see is the true one or
+  a dead-reckoning estimate integrated with the model's parameters, optionally reset towards
+  an absolute fix (:mod:`mpclab.world.localization`); the noise above is added to it.
+* **actuators** (``actuator.time_constant_s``, ``actuator.rate_limit``): the plant sees the
+  output of a first-order lag and/or a rate limit of the command, not the command itself
+  (:mod:`mpclab.world.actuators`).
+
+Every draw comes from generators seeded by the run's seed (streams of their own, so a
+scenario's random layout does not change when noise is switched on, nor the noise when a
+recorded latency or the odometry's errors are).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mpclab.config.registry import component, schema_from_init
+from mpclab.core.errors import ConfigError, check_keys, number, parse_choice
+from mpclab.plants.base import FloatArray, Plant
+from mpclab.world.actuators import Actuator
+from mpclab.world.latency import DeadlinePolicy, Latency, latency_profile_s, parse_latency
+from mpclab.world.localization import Fix, Localization, Odometry, state_stds
+
+#: the spawn keys of the world's random streams under the run's seed: noise and
+#: disturbance, recorded latencies, the odometry's errors and fixes
+_STREAM = 7
+_LATENCY_STREAM = 8
+_ODOMETRY_STREAM = 9
+
+
+@dataclass
+class NoiseConf:
+    state_std: dict[str, float] = field(default_factory=dict)
+    range_std: float = 0.0
+
+
+@dataclass
+class DisturbanceConf:
+    state_std: dict[str, float] = field(default_factory=dict)
+
+
+def _nested(cls: type, name: str) -> type:
+    """The schema of a nested option group: one field per option of ``cls``'s constructor
+    (its injected ``model``, ``plant`` and ``rng`` left out), as a component's."""
+    derived = schema_from_init(cls, ("model", "plant", "rng"))
+    schema = dataclasses.make_dataclass(name, [
+        (f.name, f.type, dataclasses.field(default=f.default, default_factory=f.default_factory))
+        for f in dataclasses.fields(derived) if f.name != "_target_"])
+    schema.__module__ = __name__  # importable by name: configs holding it pickle
+    return schema
+
+
+OdometryConf = _nested(Odometry, "OdometryConf")
+FixConf = _nested(Fix, "FixConf")
+ActuatorConf = _nested(Actuator, "ActuatorConf")
+
+
+@dataclass
+class SimConf:
+    _target_: str = "mpclab.world.sim_world.SimWorld"
+    name: str = "nominal"
+    latency: Any = "none"   # none | measured | a number of ms | one_sample | recorded | modelled
+    latency_scale: float = 1.0     # factor on the latency (a slower target)
+    latency_profile: str | None = None  # recorded: a .csv or .parquet with a latency_s column
+    deadline_ms: float | None = None  # default: the control period
+    deadline_policy: str = "hold"  # hold | plan | late_apply
+    noise: NoiseConf = field(default_factory=NoiseConf)
+    disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
+    plant_params: dict[str, float] = field(default_factory=dict)
+    substeps: int = 1              # RK4 sub-intervals of the simulated plant per step
+    localization: str = "truth"    # truth | odometry
+    odometry: OdometryConf = field(default_factory=OdometryConf)  # type: ignore[valid-type]
+    localization_fix: FixConf = field(default_factory=FixConf)  # type: ignore[valid-type]
+    actuator: ActuatorConf = field(default_factory=ActuatorConf)  # type: ignore[valid-type]
+
+
+@dataclass
+class Timing:
+    """When a step's input acts: ``latency_s`` after the measurement, or never (a miss
+    under ``hold`` or ``plan``); the loop's next controller call comes ``periods`` control
+    periods later (more than one: ``late_apply``'s board was busy)."""
+
+    latency_s: float
+    missed: bool
+    applied: FloatArray  # the input in effect after the switch
+    late: bool = False  # a missed deadline whose input acts when it is ready (late_apply)
+    periods: int = 1
+
+    @property
+    def switch_s(self) -> float:
+        """When the step's input starts to act, after the measurement (NaN: never)."""
+        return math.nan if self.missed and not self.late else self.latency_s
+
+
+@component("sim", "sim", SimConf, open_keys=(
+    "plant_params", "noise.state_std", "disturbance.state_std", "odometry.input_std",
+    "odometry.quantum", "localization_fix.std"))
+class SimWorld:
+    """The simulated world around the controller (see the module docstring).
+
+    Parameters
+    ----------
+    plant
+        Injected: the controller's model; the simulated plant is a variant of it.
+    seed
+        Injected: the run's seed.
+    dt
+        Injected: the control period [s].
+    """
+
+    def __init__(
+        self,
+        plant: Plant,
+        seed: int = 0,
+        dt: float = 0.1,
+        name: str = "nominal",
+        latency: Any = "none",
+        latency_scale: float = 1.0,
+        latency_profile: str | None = None,
+        deadline_ms: float | None = None,
+        deadline_policy: str = "hold",
+        noise: Mapping[str, Any] | None = None,
+        disturbance: Mapping[str, Any] | None = None,
+        plant_params: Mapping[str, float] | None = None,
+        substeps: int = 1,
+        localization: str = "truth",
+        odometry: Mapping[str, Any] | None = None,
+        localization_fix: Mapping[str, Any] | None = None,
+        actuator: Mapping[str, Any] | None = None,
+    ) -> None:
+        self.name = str(name)
+        self.dt = float(dt)
+        self.latency, self.fixed_latency_s = parse_latency(latency)
+        self.latency_scale = _positive(latency_scale, "sim.latency_scale")
+        self.latency_profile = latency_profile
+        self.profile_s = (latency_profile_s(latency_profile)
+                          if self.latency is Latency.recorded else None)
+        period_ms = 1e3 * self.dt
+        self.deadline_s = (self.dt if deadline_ms is None
+                           else _positive(deadline_ms, "sim.deadline_ms") / 1e3)
+        if self.deadline_s > self.dt * (1 + 1e-9):
+            raise ConfigError(f"sim.deadline_ms must be at most the control period "
+                              f"({period_ms:g} ms), got {deadline_ms}")
+        self.policy = parse_choice(DeadlinePolicy, deadline_policy, "sim.deadline_policy")
+        noise = dict(noise or {})
+        check_keys(noise, [f.name for f in dataclasses.fields(NoiseConf)], "sim.noise")
+        self.state_std = state_stds(plant, noise.get("state_std") or {}, "sim.noise.state_std")
+        self.range_std = _nonneg(noise.get("range_std", 0.0), "sim.noise.range_std")
+        disturbance = dict(disturbance or {})
+        check_keys(disturbance, ["state_std"], "sim.disturbance")
+        self.walk_std = state_stds(plant, disturbance.get("state_std") or {},
+                                   "sim.disturbance.state_std")
+        if int(substeps) < 1:
+            raise ConfigError(f"sim.substeps must be an integer >= 1, got {substeps}")
+        self.substeps = int(substeps)
+        self.plant_params = dict(plant_params or {})
+        self.model = plant
+        self.plant = plant.variant(self.plant_params, self.substeps, where="sim.plant_params")
+        self.rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_STREAM,)))
+        self.localization = parse_choice(Localization, localization, "sim.localization")
+        odometry_rng = np.random.default_rng(
+            np.random.SeedSequence(int(seed), spawn_key=(_ODOMETRY_STREAM,)))
+        self.odometry = Odometry(plant, odometry_rng,
+                                 **_group(odometry, OdometryConf, "sim.odometry"))
+        self.fix = Fix(plant, odometry_rng,
+                       **_group(localization_fix, FixConf, "sim.localization_fix"))
+        self.dead_reckoning = self.localization is Localization.odometry
+        if not self.dead_reckoning and (self.odometry.configured or self.fix.configured):
+            what = (f"sim.odometry ({self.odometry.describe()})" if self.odometry.configured
+                    else f"sim.localization_fix.period_s={self.fix.period_s:g}")
+            raise ConfigError(f"{what}: acts only with sim.localization=odometry, got "
+                              f"sim.localization={self.localization.value}")
+        self.actuator = Actuator(**_group(actuator, ActuatorConf, "sim.actuator"))
+        #: what the world adds to the loop, decided once: state noise, input latency, a
+        #: state the controller sees other than the true one (noise or odometry), actuators
+        self.noisy = bool(self.state_std.any())
+        self.delayed = self.latency is not Latency.none
+        self.estimated = self.noisy or self.dead_reckoning
+        self.actuated = self.actuator.active
+        self._walk = bool(self.walk_std.any())
+        self._plan: FloatArray | None = None  # the inputs of the last plan in time
+        self._plan_age = 0
+        self._latency_rng = np.random.default_rng(
+            np.random.SeedSequence(int(seed), spawn_key=(_LATENCY_STREAM,)))
+        self._expected_s = self.dt if self.latency is Latency.one_sample else \
+            self.fixed_latency_s * self.latency_scale
+        if self.profile_s is not None:
+            self._expected_s = float(np.median(self.profile_s)) * self.latency_scale
+        self.reset(plant.nu)
+
+    # ---------------------------------------------------------------- what it adds
+
+    def reset(self, nu: int) -> None:
+        self._plan, self._plan_age = None, 0
+        if self.latency in (Latency.measured, Latency.modelled):
+            self._expected_s = 0.0
+        self.applied = np.zeros(nu)
+        self.actuator.reset(nu)
+        self.fix.reset()
+        self._t, self._started = 0.0, False
+        self._errors: list[float] = []  # the estimate's position error after each period
+
+    def measure(self, x: FloatArray) -> FloatArray:
+        """The state the controller sees at the true state ``x``: ``x`` itself, or the
+        odometry's estimate (started at the first ``x``), plus the state noise."""
+        if self.dead_reckoning and not self._started:
+            self.odometry.reset(x)
+        self._started = True
+        seen = self.odometry.estimate.copy() if self.dead_reckoning else x
+        if not self.noisy:
+            return seen
+        return seen + self.state_std * self.rng.standard_normal(x.shape)
+
+    def perturb_ranges(self, ranges: FloatArray) -> FloatArray:
+        """Range readings with the sensor's noise (rays that see nothing stay ``inf``)."""
+        if self.range_std <= 0:
+            return ranges
+        noisy = ranges + self.range_std * self.rng.standard_normal(ranges.shape)
+        return np.where(np.isfinite(ranges), np.maximum(noisy, 0.0), ranges)
+
+    @property
+    def predicts(self) -> bool:
+        """Whether the controller computes from the state predicted over the latency
+        (``one_sample``: the state at the next sample)."""
+        return self.latency is Latency.one_sample
+
+    def expected_latency_s(self) -> float:
+        """The latency the coming solve's input is expected to act after: the fixed one,
+        one period (``one_sample``), the recorded median or the last measured one (0 before
+        the first)."""
+        return self._expected_s
+
+    def board_time(self, controller: Any) -> Any:
+        """``controller``'s model of a call's time on its board (``sim.latency=modelled``),
+        else None; a controller that models none is refused, naming the key."""
+        if self.latency is not Latency.modelled:
+            return None
+        model = controller.board_time_model()
+        if model is None:
+            name = controller.registered_name or type(controller).__name__
+            raise ConfigError(
+                f"sim.latency=modelled: the {name} controller models no time on a board; "
+                "valid: controller=scheduled with "
+                "controller.codegen=true, or another sim.latency (none, measured, a number "
+                "of ms, one_sample, recorded)")
+        return model
+
+    def timing(self, u: FloatArray, u_pred: FloatArray, solve_time_s: float,
+               modelled_s: float | None = None) -> Timing:
+        """When the input ``u`` (first of the plan ``u_pred``) acts, given the solve took
+        ``solve_time_s`` (and, under ``modelled``, ``modelled_s`` on the board)."""
+        if self.latency is Latency.none:
+            tau = 0.0
+        elif self.latency is Latency.measured:
+            tau = solve_time_s * self.latency_scale
+        elif self.latency is Latency.modelled:  # simulate passes the controller's model's
+            tau = float(modelled_s) * self.latency_scale
+        elif self.latency is Latency.one_sample:
+            tau = self.dt
+        elif self.profile_s is not None:
+            tau = float(self._latency_rng.choice(self.profile_s)) * self.latency_scale
+        else:
+            tau = self.fixed_latency_s * self.latency_scale
+        if self.latency in (Latency.measured, Latency.modelled):
+            self._expected_s = tau
+        if tau <= self.deadline_s or self.latency is Latency.one_sample:
+            self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
+            return Timing(tau, False, np.asarray(u, dtype=float))
+        if self.policy is DeadlinePolicy.late_apply:  # busy until ready, free at the next sample
+            periods = max(1, math.ceil(tau / self.dt - 1e-9))
+            self._plan, self._plan_age = np.asarray(u_pred, dtype=float), 0
+            return Timing(tau, True, np.asarray(u, dtype=float), late=True, periods=periods)
+        self._plan_age += 1
+        held = self.applied
+        if self.policy is DeadlinePolicy.plan and self._plan is not None:
+            if self._plan_age < len(self._plan):
+                held = self._plan[self._plan_age]
+        return Timing(tau, True, held)
+
+    def pieces(self, timing: Timing) -> list[tuple[FloatArray, float]]:
+        """The inputs the plant sees until the next controller call, in order, with how
+        long each holds ``[(input, duration [s])]``: the :meth:`commands`, or the actuators'
+        response to them in short pieces."""
+        return self.actuator.respond(self.commands(timing), self.dt)[0]
+
+    def commands(self, timing: Timing) -> list[tuple[FloatArray, float]]:
+        """The commands in effect until the next controller call ``[(input, duration)]``:
+        the applied input until the switch, the new one after it (a missed deadline under
+        ``hold`` or ``plan``: one input for the whole period; ``late_apply``: over as many
+        periods as the board was busy)."""
+        span, tau = self.dt * timing.periods, timing.latency_s
+        if (timing.missed and not timing.late) or tau <= 0.0:
+            return [(timing.applied, span)]
+        if tau >= span:  # exactly at the end: the new input acts from the next call
+            return [(self.applied, span)]
+        return [(self.applied, tau), (timing.applied, span - tau)]
+
+    def advance(self, x: FloatArray, timing: Timing) -> FloatArray:
+        """The true state at the next controller call (one control period later, more under
+        ``late_apply``): the :meth:`pieces` integrated one after the other, then the
+        disturbance; the odometry integrates the same pieces, then takes a fix if one is
+        due."""
+        pieces, output = self.actuator.respond(self.commands(timing), self.dt)
+        for u, duration in pieces:
+            x = self.plant.step(x, u, duration)
+        self.actuator.commit(output)
+        dt = self.dt * timing.periods
+        self.applied = timing.applied
+        if self._walk:
+            x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
+        if self.dead_reckoning:
+            self._t += dt
+            estimate = self.odometry.advance(pieces)
+            self.odometry.estimate = self.fix.correct(self._t, x, estimate)
+            at = [self.model.state_index(label) for label in self.model.position]
+            self._errors.append(float(np.linalg.norm(self.odometry.estimate[at] - x[at])))
+        return x
+
+    def describe(self) -> dict[str, Any]:
+        """What the run record says of the world (the summary's ``sim_*`` keys)."""
+        return {
+            "sim": self.name,
+            "sim_latency": (f"{1e3 * self.fixed_latency_s:g} ms"
+                            if self.latency is Latency.fixed else self.latency.value),
+            "sim_deadline_policy": self.policy.value,
+            "sim_latency_scale": self.latency_scale,
+            "sim_latency_profile": self.latency_profile if self.profile_s is not None else None,
+            "sim_plant_params": dict(self.plant_params),
+            "sim_localization": self.localization.value,
+            "sim_odometry": self.odometry.describe() if self.dead_reckoning else None,
+            "sim_localization_fix": self.fix.describe() or None,
+            "sim_actuator": self.actuator.describe() if self.actuated else None,
+            # the estimate's position error [m], after every period and at the end
+            "localization_error_max_m": max(self._errors) if self._errors else None,
+            "localization_error_final_m": self._errors[-1] if self._errors else None,
+            "localization_fixes": self.fix.count if self.fix.configured else None,
+        }
+
+
+def _nonneg(value: Any, key: str) -> float:
+    return number(value, key, at_least=0)
+
+
+def _positive(value: Any, key: str) -> float:
+    return number(value, key, above=0)
+
+
+def _group(given: Mapping[str, Any] | None, schema: type, key: str) -> dict[str, Any]:
+    """A nested option group as keyword arguments; a key it does not have is an error."""
+    options = dict(given or {})
+    check_keys(options, [f.name for f in dataclasses.fields(schema)], key)
+    return options
