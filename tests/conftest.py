@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from mpclab.codegen.pil import missing_tools
-from mpclab.experiment import CONF_DIR as CONF
-from mpclab.experiment import compose as compose_cfg  # the config the app runs with
+from mpclab.runner.single_run import CONF_DIR as CONF
+from mpclab.runner.single_run import compose as compose_cfg  # the config the app runs with
 
 ROOT = CONF.parent
 
@@ -27,13 +27,18 @@ ROOT = CONF.parent
 PIL_PACKAGES = "gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
 
 
-def _have_ray() -> bool:
-    return all(importlib.util.find_spec(m) for m in ("ray", "hydra_plugins.hydra_ray_launcher"))
+def _have(*modules: str) -> Callable[[], bool]:
+    return lambda: all(importlib.util.find_spec(m) for m in modules)
 
 
 #: what a ``needs`` marker may name: (is it here?, what is missing, the command that adds it)
 SETUPS: dict[str, tuple[Callable[[], bool], str, str]] = {
-    "ray": (_have_ray, "the `ray` extra (Hydra's Ray launcher)", "uv sync --extra ray"),
+    "ray": (_have("ray", "hydra_plugins.hydra_ray_launcher"),
+            "the `ray` extra (Hydra's Ray launcher)", "uv sync --extra ray"),
+    "nn": (_have("sklearn"), "the `nn` extra (scikit-learn, to train the net)",
+           "uv sync --extra nn"),
+    "search": (_have("optuna"), "the `search` extra (optuna, for the search sweeper)",
+               "uv sync --extra search"),
     "pil": (lambda: not missing_tools(), "the Cortex-M4 toolchain and emulator",
             f"sudo apt-get install {PIL_PACKAGES}"),
 }
@@ -72,7 +77,7 @@ def run_cfg(tmp_path: Path) -> Callable[..., tuple[object, Path]]:
     No figures, no recorder and no progress line unless the overrides ask for them
     (later overrides win: pass ``recorder=rerun`` to record).
     """
-    from mpclab.experiment import run_experiment
+    from mpclab.runner.single_run import run_experiment
 
     def _run(overrides: Sequence[str], name: str = "run", figures: bool = False):
         base = ["recorder=none", "progress=false", f"figures.enabled={str(figures).lower()}"]

@@ -10,13 +10,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.neural_network import MLPRegressor
+
+try:  # the `nn` extra; without it every test here is skipped (pytestmark)
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.neural_network import MLPRegressor
+except ImportError:
+    pass
 
 from mpclab.approx.export_c import time_compiled, to_c
 from mpclab.policy.mlp import MLP
 
 RNG = np.random.default_rng(3)
+
+pytestmark = pytest.mark.needs("nn")
 
 
 def fitted(hidden=(100,), activation="tanh", n_in=26, n_out=2) -> tuple[MLPRegressor, np.ndarray]:

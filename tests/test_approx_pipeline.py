@@ -16,6 +16,7 @@ from mpclab.policy.mlp import MLP
 
 
 @pytest.mark.slow
+@pytest.mark.needs("nn")
 def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> None:
     work, pub = tmp_path / "work", tmp_path / "pub"
     main(["--config", str(ROOT / "conf/approx/zumo_nn_smoke.yaml"),
@@ -48,7 +49,8 @@ def test_smoke_pipeline_goes_from_nothing_to_an_evaluation(tmp_path: Path) -> No
     # the evaluation alone re-runs on the published net, with no dataset in its work folder
     (pub / "evaluation.md").unlink()
     main(["--config", str(ROOT / "conf/approx/zumo_nn_smoke.yaml"), "--stages", "eval",
-          f"work_dir={tmp_path / 'eval_only'}", f"publish_dir={pub}"])
+          f"work_dir={tmp_path / 'eval_only'}", f"publish_dir={pub}",
+          f"weights_file={pub / 'weights.npz'}"])
     assert not (tmp_path / "eval_only" / "dataset.parquet").exists()
     assert "## Single obstacle, held-out starts" in (pub / "evaluation.md").read_text()
 

@@ -9,6 +9,8 @@ import pytest
 from mpclab.approx.train import TrainConf, pairs, train
 from mpclab.policy.features import FeatureSet, features
 
+pytestmark = pytest.mark.needs("nn")
+
 RNG = np.random.default_rng(11)
 
 

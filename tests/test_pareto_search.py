@@ -9,7 +9,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import optuna
 import pandas as pd
 import pytest
 
@@ -33,7 +32,10 @@ def search(sweep_dir: Path, n_trials: int) -> str:
     return out
 
 
+@pytest.mark.needs("search")
 def test_search_writes_its_front_and_resumes_without_repeating_trials(tmp_path: Path) -> None:
+    import optuna  # the `search` extra (the marker skips this test without it)
+
     search(tmp_path, 3)
     storage = f"sqlite:///{tmp_path / 'optuna.db'}"
     study = optuna.load_study(study_name="pareto", storage=storage)

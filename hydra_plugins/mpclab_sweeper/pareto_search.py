@@ -31,7 +31,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import optuna
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, Override, RangeSweep
 from hydra.core.plugins import Plugins
@@ -39,12 +38,17 @@ from hydra.plugins.launcher import Launcher
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf
-from optuna.trial import TrialState
 
 from mpclab import tables
-from mpclab.errors import ConfigError
+from mpclab.core.errors import ConfigError
 from mpclab.sweeps.expand import sweep_dir_override
 from mpclab.tables.pareto import override_value, pareto_points, parse_objectives
+
+try:  # the `search` extra; without it this module still imports (Hydra scans every plugin)
+    import optuna
+except ImportError:
+    optuna = None
+
 
 log = logging.getLogger(__name__)
 #: where the sweep's config names the front's objectives
@@ -114,6 +118,8 @@ class ParetoSearchSweeper(Sweeper):
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
               config: DictConfig) -> None:
+        if optuna is None:
+            raise ConfigError("hydra/sweeper=pareto_search needs optuna: uv sync --extra search")
         self.hydra_context, self.config = hydra_context, config
         self.launcher = Plugins.instance().instantiate_launcher(
             hydra_context=hydra_context, task_function=task_function, config=config)
@@ -177,8 +183,8 @@ class ParetoSearchSweeper(Sweeper):
     def _resume(study: optuna.Study) -> int:
         """Queue again the trials an interrupt cut short (with their job folders); return
         how many trials have finished (an interrupted one is not)."""
-        for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
-            study.tell(t.number, state=TrialState.FAIL)
+        for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+            study.tell(t.number, state=optuna.trial.TrialState.FAIL)
             attrs = {"rerun_of": t.number}
             if "first_job" in t.user_attrs:
                 attrs["first_job"] = t.user_attrs["first_job"]
@@ -186,7 +192,7 @@ class ParetoSearchSweeper(Sweeper):
         trials = study.get_trials(deepcopy=False)
         cut = {t.user_attrs["rerun_of"] for t in trials if "rerun_of" in t.user_attrs}
         return sum(1 for t in trials if t.number not in cut
-                   and t.state in (TrialState.COMPLETE, TrialState.FAIL))
+                   and t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.FAIL))
 
     @staticmethod
     def _tell(study: optuna.Study, trial: optuna.Trial, objectives: Sequence[Any],
@@ -195,7 +201,7 @@ class ParetoSearchSweeper(Sweeper):
         df, step_ms = tables.collect_runs([d for d in run_dirs if d.exists()])
         row = pareto_points(df, objectives, step_ms).iloc[0] if len(df) else None
         if row is None:
-            study.tell(trial, state=TrialState.FAIL)
+            study.tell(trial, state=optuna.trial.TrialState.FAIL)
             return
         bad = row["runs"] - row["arrived"] + row["deadline_misses"]
         trial.set_user_attr("constraint", [float(bad)])
@@ -205,13 +211,14 @@ class ParetoSearchSweeper(Sweeper):
         if all(math.isfinite(v) for v in values):
             study.tell(trial, values)
         else:  # no seed arrived: no arrival time to tell
-            study.tell(trial, state=TrialState.FAIL)
+            study.tell(trial, state=optuna.trial.TrialState.FAIL)
 
 
 def _same_point(study: optuna.Study, trial: optuna.Trial) -> int | None:
     """The first job of a finished trial of the same point (asked again: its jobs are
     complete and skip, so the point is not run twice), or None."""
-    for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.FAIL)):
+    done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.FAIL)
+    for t in study.get_trials(deepcopy=False, states=done):
         if t.params == trial.params and "first_job" in t.user_attrs:
             return int(t.user_attrs["first_job"])
     return None

@@ -22,7 +22,7 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 from mpclab.approx import dataset
-from mpclab.errors import exit_on_bad_input
+from mpclab.core.errors import ConfigError, exit_on_bad_input
 from mpclab.policy.features import FeatureSet, features
 from mpclab.policy.mlp import MLP, Activation
 
@@ -78,8 +78,11 @@ def train(
     meta: dict[str, Any] | None = None,
 ) -> tuple[MLP, TrainReport]:
     """Fit the net on ``data`` (a merged dataset); return it and the held-out errors."""
-    from sklearn.exceptions import ConvergenceWarning
-    from sklearn.neural_network import MLPRegressor
+    try:  # the `nn` extra: training only; running a net needs numpy alone
+        from sklearn.exceptions import ConvergenceWarning
+        from sklearn.neural_network import MLPRegressor
+    except ImportError:
+        raise ConfigError("training the net needs scikit-learn: uv sync --extra nn") from None
 
     Z, U, runs = pairs(data, conf, inputs)
     if len(Z) == 0:
