@@ -2,10 +2,10 @@
 
 A command is a line of a code block (fenced, or indented by four spaces) that starts with
 ``uv run`` (or ``$ uv run``; a trailing ``\\`` continues it). Each block's commands run in
-order, in a fresh working folder that sees the checkout's ``conf/``, ``docs/`` and
-``experiments/`` (so a page's relative paths resolve and nothing is written into the
-checkout), with the project's Python in place of ``uv run``. The test fails on a non-zero
-exit, and on an output that contradicts the page:
+order, in a fresh working folder that sees the checkout's ``conf/``, ``docs/``,
+``experiments/`` and ``tests/`` (so a page's relative paths resolve and nothing is written
+into the checkout), with the project's Python in place of ``uv run``. The test fails on a
+non-zero exit, and on an output that contradicts the page:
 
 - lines shown under a ``$ command`` are its expected output (and then a non-zero exit is
   what the page shows);
@@ -152,33 +152,41 @@ def _argv(command: str, work: Path, last_dir: str | None, smoke: list[str]) -> l
     if args[0] == "python":
         args[0] = sys.executable
         if args[1:3] == ["-m", "mpclab"]:
-            args += smoke
+            args += [a for a in smoke if a not in args]  # a page's own +ci=smoke stays one
     return args
 
 
 def _check_announced(output: str, cwd: Path) -> str | None:
-    """The folder the output last announced (absolute); a sweep's must hold a table of its
-    jobs."""
-    last = None
+    """The folder the output announced (absolute): a sweep's, else the last run's. A sweep's
+    must hold a table of its jobs."""
+    last_run = last_sweep = None
     for m in ANNOUNCED.finditer(output):
-        last = str(cwd / m.group(2))  # an absolute path stays itself
-        if m.group(1) is not None:  # a sweep: its table, under the folder it announced
-            table = Path(last) / "summary.parquet"
-            assert table.is_file(), f"the sweep announced {last} but wrote no table there"
-            if m.group(1) != "?":
-                rows = len(pd.read_parquet(table))
-                assert rows == int(m.group(1)), f"{table}: {rows} rows, {m.group(1)} jobs"
-    return last
+        folder = str(cwd / m.group(2))  # an absolute path stays itself
+        if m.group(1) is None:
+            last_run = folder
+            continue
+        last_sweep = folder  # a sweep: its table, under the folder it announced
+        table = Path(folder) / "summary.parquet"
+        assert table.is_file(), f"the sweep announced {folder} but wrote no table there"
+        if m.group(1) != "?":
+            rows = len(pd.read_parquet(table))
+            assert rows == int(m.group(1)), f"{table}: {rows} rows, {m.group(1)} jobs"
+    return last_sweep or last_run
+
+
+#: what a command line needs beyond `uv run` (tests/conftest.py SETUPS), by what it holds
+NEEDS = {"hydra/launcher=ray_cluster": "ray", "hydra/sweeper=pareto_search": "search",
+         "mpclab.approx.pipeline": "nn", "mpclab.approx.train": "nn"}
 
 
 def _marks(block: Block) -> list[pytest.MarkDecorator]:
-    ray = any("hydra/launcher=ray_cluster" in c for c, _ in block.commands)
-    return [pytest.mark.needs("ray")] if ray else []
+    needed = {name for c, _ in block.commands for text, name in NEEDS.items() if text in c}
+    return [pytest.mark.needs(*sorted(needed))] if needed else []
 
 
 @pytest.mark.parametrize("block", [pytest.param(b, id=b.id, marks=_marks(b)) for b in BLOCKS])
 def test_the_command_runs_as_shown(block: Block, tmp_path: Path) -> None:
-    for name in ("conf", "docs", "experiments"):
+    for name in ("conf", "docs", "experiments", "tests"):
         (tmp_path / name).symlink_to(ROOT / name)
     if block.directive.startswith("skip"):
         assert len(block.directive.split(maxsplit=1)) == 2, f"{block.id}: skip without a reason"
