@@ -184,6 +184,13 @@ def _marks(block: Block) -> list[pytest.MarkDecorator]:
     return [pytest.mark.needs(*sorted(needed))] if needed else []
 
 
+def _checkout_state() -> str:
+    """What git sees changed in the checkout (a command must not write into it)."""
+    proc = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True,
+                          text=True)
+    return proc.stdout if proc.returncode == 0 else ""
+
+
 @pytest.mark.parametrize("block", [pytest.param(b, id=b.id, marks=_marks(b)) for b in BLOCKS])
 def test_the_command_runs_as_shown(block: Block, tmp_path: Path) -> None:
     for name in ("conf", "docs", "experiments", "tests"):
@@ -199,6 +206,7 @@ def test_the_command_runs_as_shown(block: Block, tmp_path: Path) -> None:
     smoke = ["+ci=smoke", *(["recorder=rerun"] if records else []),
              *shlex.split(block.directive)]
     last_dir: str | None = None
+    before = _checkout_state()
     for command, expected in block.commands:
         program = shlex.split(command, comments=True)[2]
         if program == "pytest":
@@ -224,6 +232,8 @@ def test_the_command_runs_as_shown(block: Block, tmp_path: Path) -> None:
             summary = Path(last_dir) / "summary.json"
             if summary.is_file():
                 json.loads(summary.read_text())  # a whole run record
+    assert _checkout_state() == before, f"{block.id} wrote into the checkout (a page's " \
+        "benchmark that writes its stamped results wants <!-- doc-test: skip REASON -->)"
 
 
 def test_the_pages_show_commands() -> None:
