@@ -1,4 +1,4 @@
-"""Study C embedded benchmark: the scheduled MPC in Python, as generated C on this machine, and
+"""Study C embedded benchmark: the scheduled MPC in Python, as generated C on the desktop, and
 on an emulated Cortex-M4F (modelled cycles -> time at 84 MHz), side by side in one run.
 
     uv run python experiments/embedded/bench.py               # all configurations

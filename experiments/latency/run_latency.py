@@ -2,13 +2,13 @@
 
 Every backend of Study A (the car) and of Study B (BUG2 on the dead end) runs with
 ``sim.latency=measured`` and the solve time scaled by 1, 10 and 100 (a target 10x or 100x
-slower than this machine), beside its ideal loop (``sim=nominal``, scale 0 in the table).
-Study C's scheduled controller runs at 20 ms and at 50 ms with the study's own measured
+slower than the machine that runs it), beside its ideal loop (``sim=nominal``, scale 0 in the
+table). Study C's scheduled controller runs at 20 ms and at 50 ms with the study's own measured
 microcontroller time (``sim=embedded_stm32``: 33.8 ms at horizon 32), and at 20 ms from our
 generated C with each call's modelled Cortex-M4 time (``sim=embedded_m4``: 0.433 ms a step at
-horizon 32 in double precision). For the real-time iteration (``controller=casadi_rti``) the
-latency is its feedback time, the preparation runs after the input is sent. One process, runs
-one after another, so each solve time is measured on an otherwise idle core.
+horizon 32 in double precision). For the real-time iteration (``controller=casadi_rti``) the latency
+is its feedback time, the preparation runs after the input is sent. One process, runs one after
+another, so each solve time is measured on an otherwise idle core.
 
     uv run python experiments/latency/run_latency.py            # results.csv/.md, figure
     uv run python experiments/latency/run_latency.py --only car  # one study
