@@ -89,9 +89,14 @@ def run_cfg(tmp_path: Path) -> Callable[..., tuple[object, Path]]:
 
 
 def wait_for(check: Callable[[], bool], proc: subprocess.Popen, limit_s: float = 240.0) -> None:
-    """Wait until ``check()`` holds, while ``proc`` (a command to be stopped) still runs."""
+    """Wait until ``check()`` holds, while ``proc`` (a command to be stopped) still runs; if
+    it never does, ``proc`` is killed (a failed test leaves no run going on)."""
     t0 = time.time()
     while not check():
-        assert proc.poll() is None, "ended before it could be stopped"
-        assert time.time() - t0 < limit_s, "never got under way"
+        if proc.poll() is not None:
+            raise AssertionError("ended before it could be stopped")
+        if time.time() - t0 >= limit_s:
+            proc.kill()
+            proc.wait()
+            raise AssertionError("never got under way")
         time.sleep(0.2)
