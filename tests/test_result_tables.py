@@ -27,8 +27,6 @@ UNBACKED: set[tuple[str, str]] = {
     ("experiments/latency/README.md", "uv run python experiments/latency/run_latency.py"),
     ("experiments/latency/README.md", "uv run python experiments/latency/run_policies.py"),
     ("experiments/pareto/README.md", "uv run python -m mpclab.tables"),
-    ("experiments/sweeps/README.md", "bench_scale.py --jobs 96 --rounds"),
-    ("experiments/sweeps/README.md", "uv run python -m mpclab"),
 }
 
 
