@@ -149,6 +149,8 @@ def _argv(command: str, work: Path, last_dir: str | None, smoke: list[str]) -> l
     args = shlex.split(command, comments=True)
     assert args[:2] == ["uv", "run"], command
     args = args[2:]
+    while args and args[0].startswith("--"):  # uv run's own options (--extra nn: marked)
+        args = args[2:] if args[0] in ("--extra", "--group", "--with") else args[1:]
     if args[0] == "python":
         args[0] = sys.executable
         if args[1:3] == ["-m", "mpclab"]:
@@ -181,6 +183,7 @@ NEEDS = {"hydra/launcher=ray_cluster": "ray", "hydra/sweeper=pareto_search": "se
 
 def _marks(block: Block) -> list[pytest.MarkDecorator]:
     needed = {name for c, _ in block.commands for text, name in NEEDS.items() if text in c}
+    needed |= {m for c, _ in block.commands for m in re.findall(r"--extra (\w+)", c)}
     return [pytest.mark.needs(*sorted(needed))] if needed else []
 
 
@@ -208,7 +211,7 @@ def test_the_command_runs_as_shown(block: Block, tmp_path: Path) -> None:
     last_dir: str | None = None
     before = _checkout_state()
     for command, expected in block.commands:
-        program = shlex.split(command, comments=True)[2]
+        program = _argv(command, tmp_path, last_dir, [])[0]
         if program == "pytest":
             continue  # this suite
         if program == "rerun":  # the viewer opens a window: the file it opens must exist

@@ -44,3 +44,18 @@ def test_a_tool_refuses_bad_input_with_one_message(main, args, wanted, tmp_path:
     assert "Traceback" not in err and "error: " in err, err
     for w in wanted:
         assert w.format(tmp=tmp_path) in err, f"{w!r} not in:\n{err}"
+
+
+def test_training_without_its_extra_is_one_message_before_any_work(tmp_path: Path, capsys,
+                                                                   monkeypatch) -> None:
+    """Without scikit-learn (the ``nn`` extra) the pipeline refuses a training stage at once,
+    naming the command that installs it, before its data stage sweeps anything."""
+    real = train.importlib.util.find_spec
+    monkeypatch.setattr(train.importlib.util, "find_spec",
+                        lambda name, *a: None if name == "sklearn" else real(name, *a))
+    with pytest.raises(SystemExit) as stop:
+        pipeline.main([f"work_dir={tmp_path / 'work'}", f"publish_dir={tmp_path / 'pub'}"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "uv sync --extra nn" in err and "Traceback" not in err
+    assert not (tmp_path / "work").exists()

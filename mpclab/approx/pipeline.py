@@ -35,8 +35,8 @@ from omegaconf import OmegaConf
 
 from mpclab.approx import dataset, evaluate
 from mpclab.approx.export_c import c_compiler, time_compiled, to_c
-from mpclab.approx.train import TrainConf, train
-from mpclab.core.errors import exit_on_bad_input
+from mpclab.approx.train import TrainConf, require_trainer, train
+from mpclab.core.errors import ConfigError, exit_on_bad_input
 from mpclab.policy.mlp import MLP
 from mpclab.record import files as record
 from mpclab.record.files import jsonable
@@ -160,6 +160,11 @@ def main(argv: list[str] | None = None) -> None:
     if unknown:
         ap.error(f"--stages: unknown stage(s) {', '.join(sorted(unknown))}; stages: "
                  f"{', '.join(STAGES)}")
+    if {"train", "dagger"} & set(stages):
+        try:  # before the data stage's sweep, not after it
+            require_trainer()
+        except ConfigError as exc:
+            exit_on_bad_input(ap, exc)
     work, pub = ROOT / conf.work_dir, ROOT / conf.publish_dir
     published = ROOT / conf.weights_file
     work.mkdir(parents=True, exist_ok=True)

@@ -12,6 +12,7 @@ scalings are folded into the saved :class:`~mpclab.policy.mlp.MLP`.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,6 +70,13 @@ def pairs(data: pd.DataFrame, conf: TrainConf, inputs: list[str]) -> tuple[np.nd
     return Z, d[inputs].to_numpy(float), d["run"].to_numpy()
 
 
+def require_trainer() -> None:
+    """Raise :class:`ConfigError` unless scikit-learn (the ``nn`` extra) is installed: training
+    needs it, running a trained net does not."""
+    if importlib.util.find_spec("sklearn") is None:
+        raise ConfigError("training the net needs scikit-learn: uv sync --extra nn")
+
+
 def train(
     data: pd.DataFrame,
     conf: TrainConf,
@@ -78,11 +86,9 @@ def train(
     meta: dict[str, Any] | None = None,
 ) -> tuple[MLP, TrainReport]:
     """Fit the net on ``data`` (a merged dataset); return it and the held-out errors."""
-    try:  # the `nn` extra: training only; running a net needs numpy alone
-        from sklearn.exceptions import ConvergenceWarning
-        from sklearn.neural_network import MLPRegressor
-    except ImportError:
-        raise ConfigError("training the net needs scikit-learn: uv sync --extra nn") from None
+    require_trainer()  # the `nn` extra: imported here, so that a net runs without it
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.neural_network import MLPRegressor
 
     Z, U, runs = pairs(data, conf, inputs)
     if len(Z) == 0:
@@ -134,9 +140,10 @@ def main(argv: list[str] | None = None) -> TrainReport:
     ap.add_argument("overrides", nargs="*", help="train.KEY=VALUE")
     args = ap.parse_intermixed_args(argv)  # overrides before or after -o
     dotlist = [o.removeprefix("train.") for o in args.overrides]
-    try:  # a typo'd or mistyped option, no dataset or not one
+    try:  # a typo'd or mistyped option, no dataset or not one, no trainer
         conf = OmegaConf.merge(OmegaConf.structured(TrainConf), OmegaConf.from_dotlist(dotlist))
         data, meta = dataset.read(args.data)
+        require_trainer()
     except Exception as exc:  # noqa: BLE001  (bad input is one message; a bug re-raised)
         exit_on_bad_input(ap, exc)
     inputs = ["u1", "u2"]
