@@ -64,7 +64,7 @@ def _blocks(page: Path) -> list[Block]:
     """The code blocks of ``page`` that hold at least one ``uv run`` command."""
     lines = page.read_text().splitlines()
     blocks: list[Block] = []
-    i, directive, fenced = 0, "", False
+    directive, fenced = "", False
     current: list[tuple[int, str]] = []
 
     def close() -> None:

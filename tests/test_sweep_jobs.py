@@ -5,8 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+from hydra.core.override_parser.overrides_parser import OverridesParser
+
 from conftest import compose_cfg
 from mpclab.sweeps import jobs
+from mpclab.sweeps.expand import sweep_dir_override
 
 BASE = ["+experiment=car_cvxpy", "+ci=smoke"]
 CHOICES = {"plant": "kinematic_car", "controller": "cvxpy", "scenario": "car_to_origin"}
@@ -79,3 +83,13 @@ def test_an_error_row_names_its_backend_as_a_finished_run_does() -> None:
     bad_group = jobs.error_summary(exc, [*base, "controller=nope"], None, choices, cfg)
     assert bad_group["controller"] == "nope" and bad_group["plant"] == "zumo"
     assert jobs.error_summary(exc, base, None, choices)["controller"] == "casadi_fatrop"
+
+
+@pytest.mark.parametrize("folder", ["outputs/multirun/run/2026-11-28_10-00-00",
+                                    "/tmp/my sweeps/it's here", "/tmp/a=b,c"])
+def test_the_pinned_sweep_folder_parses_back_to_itself(folder: str) -> None:
+    """Every job of a sweep is pinned to the sweep's folder by an override; Hydra's parser
+    reads that override back as the same path, spaces, quotes and commas included."""
+    (override,) = OverridesParser.create().parse_overrides([sweep_dir_override(folder)])
+    assert override.key_or_group == "hydra.sweep.dir"
+    assert not override.is_sweep_override() and override.value() == folder

@@ -144,11 +144,9 @@ def _load(path: Path) -> dict[str, Any]:
 
 
 def _sets(doc: Any, dotted: str) -> bool:
-    """Whether the YAML mapping ``doc`` holds the nested key ``dotted`` (its whole value or,
-    in a dotted key of its own such as ``start.y``, a part of it)."""
-    if not dotted or not isinstance(doc, dict):
-        return False
-    head, _, rest = dotted.partition(".")
-    if head in doc:
-        return not rest or _sets(doc[head], rest)
-    return any(isinstance(k, str) and "." in k and _related(k, dotted) for k in doc)
+    """Whether the YAML mapping ``doc`` holds the nested key ``dotted``."""
+    for part in dotted.split(".") if dotted else []:
+        if not isinstance(doc, dict) or part not in doc:
+            return False
+        doc = doc[part]
+    return bool(dotted)

@@ -41,7 +41,7 @@ BAR_WIDTH = 20
 _LAUNCHING: list[Path] = []
 #: why the sweep this process launched last has no result (every job failed, or no job
 #: wrote a run record), said by the command as it exits non-zero
-_ALL_FAILED: list[str] = []
+_NO_RESULT: list[str] = []
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -93,8 +93,8 @@ def forget_sweep() -> None:
 def failed_sweep() -> str | None:
     """Why the sweep this process launched last has no result (every job failed: the first
     error; or no run record was found), and forget it; None if it has results."""
-    message = _ALL_FAILED[0] if _ALL_FAILED else None
-    _ALL_FAILED.clear()
+    message = _NO_RESULT[0] if _NO_RESULT else None
+    _NO_RESULT.clear()
     return message
 
 
@@ -170,7 +170,7 @@ class SweepCallback(Callback):
             (state / name).write_text("")
         self._progress.pop(state, None)
         _LAUNCHING[:] = [Path(config.hydra.sweep.dir)]
-        _ALL_FAILED.clear()
+        _NO_RESULT.clear()
         log.info("sweep of %s jobs into %s", "?" if total is None else total,
                  config.hydra.sweep.dir)
 
@@ -241,12 +241,12 @@ class SweepCallback(Callback):
             (state / SWEEP_FILE).write_text(json.dumps(meta))
         df = report.runs
         if df.empty:  # the command fails with this line (mpclab.cli.app)
-            _ALL_FAILED[:] = [f"the sweep wrote no run record: none found below {sweep_dir}"]
+            _NO_RESULT[:] = [f"the sweep wrote no run record: none found below {sweep_dir}"]
             return
         counts = df["status"].value_counts().to_dict()
         if set(counts) == {"error"}:
             first = df.sort_values("job")["error"].iloc[0] if "job" in df else df["error"].iloc[0]
-            _ALL_FAILED[:] = [f"every job of the sweep in {sweep_dir} failed; the first: {first}"]
+            _NO_RESULT[:] = [f"every job of the sweep in {sweep_dir} failed; the first: {first}"]
         log.info("sweep finished: %d runs in %s, %s", len(df), _clock(elapsed),
                  ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
         log.info("sweep by %s:\n%s", ", ".join(tables.group_keys(df)),

@@ -112,7 +112,8 @@ def error_summary(
         return cfg if cfg is not None else (base if group not in given else None)
 
     def component(group: str) -> Any:
-        found = component_name(source(group).get(group)) if source(group) is not None else None
+        node = source(group)
+        found = component_name(node.get(group)) if node is not None else None
         return found or named.get(group)
 
     controller = source("controller")
