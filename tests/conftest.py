@@ -8,12 +8,16 @@ second stage, after installing it) a missing one fails the test instead.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
+import inspect
 import os
 import subprocess
 import time
+import typing
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -25,6 +29,24 @@ ROOT = CONF.parent
 
 #: PIL's cross compiler, its C library and the emulator (Debian's packages)
 PIL_PACKAGES = "gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
+
+
+def grouped(cls: type, **options: Any) -> dict[str, Any]:
+    """``cls``'s keyword arguments from flat ``options``: each field of one of its option
+    groups (:mod:`mpclab.core.options`) moved into that group's mapping (tests name the
+    option, ``max_iter=1``, not its group)."""
+    hints = typing.get_type_hints(cls.__init__)
+    out: dict[str, Any] = {}
+    for name in inspect.signature(cls.__init__).parameters:
+        kinds = typing.get_args(hints.get(name)) or (hints.get(name),)
+        group = next((k for k in kinds if dataclasses.is_dataclass(k)), None)
+        if group is None:
+            continue
+        fields = {f.name for f in dataclasses.fields(group)}
+        moved = {k: options.pop(k) for k in list(options) if k in fields and k != name}
+        if moved:
+            out[name] = moved
+    return out | options
 
 
 def _have(*modules: str) -> Callable[[], bool]:

@@ -23,7 +23,7 @@ def test_clopper_pearson_matches_the_closed_forms_at_the_edges() -> None:
 
 def test_stage_cost_is_zero_at_rest_on_the_goal_and_positive_elsewhere() -> None:
     # without the obstacle nothing is in sight at the goal (with it, J4 charges even there)
-    cost = StageCost(compose_cfg(["+experiment=zumo_nn_data", "scenario.discs=[]"]))
+    cost = StageCost(compose_cfg(["+experiment=zumo_nn_data", "scenario.layout.discs=[]"]))
     at_goal = pd.DataFrame({"x": [0.4] * 3, "y": [0.4] * 3, "theta": [0.0] * 3,
                             "u1": [0.0, 0.0, np.nan], "u2": [0.0, 0.0, np.nan]})
     assert cost(at_goal) == pytest.approx(0.0, abs=1e-9)

@@ -42,8 +42,6 @@ ALLOWED_REGISTRY_UP: set[str] = set()
 #: a constructor takes at most this many parameters (options grouped in small dataclasses)
 MAX_PARAMETERS = 12
 #: constructors over the limit, with their count: to be grouped; none may grow or be added
-ALLOWED_LONG = {"CasadiMPC": 22, "CvxpyMPC": 19, "SimWorld": 17, "ObstacleScenario": 17,
-                "ScheduledMPC": 15, "Bug2": 15}
 
 
 class Edge(NamedTuple):
@@ -225,10 +223,8 @@ def test_no_constructor_takes_more_than_twelve_parameters() -> None:
                     n = len(a.args) - 1 + len(a.kwonlyargs) + bool(a.vararg) + bool(a.kwarg)
                     if n > MAX_PARAMETERS:
                         long[cls.name] = n
-    grown = {k: v for k, v in long.items() if v > ALLOWED_LONG.get(k, MAX_PARAMETERS)}
-    assert not grown, f"constructors over {MAX_PARAMETERS} parameters (group them): {grown}"
-    fixed = {k: v for k, v in ALLOWED_LONG.items() if long.get(k, 0) < v}
-    assert not fixed, f"shorter now, lower or remove from ALLOWED_LONG: {fixed}"
+    assert not long, (f"constructors over {MAX_PARAMETERS} parameters (group related options "
+                      f"into an option group, mpclab.core.options): {long}")
 
 
 def test_doc_lists_the_floors() -> None:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
+from conftest import grouped
 from mpclab.config.instantiate import build
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.scheduled.dense_qp import box_qp_2, box_qp_active_set
@@ -33,7 +34,8 @@ def objective(theta_w: float = 0.0) -> Objective:
 
 
 def controller(p: DynamicBicycle | None = None, **kw) -> ScheduledMPC:
-    return ScheduledMPC(p or plant(), objective(kw.pop("theta_w", 0.0)), **kw)
+    theta_w = kw.pop("theta_w", 0.0)
+    return ScheduledMPC(p or plant(), objective(theta_w), **grouped(ScheduledMPC, **kw))
 
 
 def ctx(target: np.ndarray) -> StepContext:
@@ -254,7 +256,7 @@ def test_backend_solvers_agree_in_the_controller() -> None:
     p = plant()
     rng = np.random.default_rng(6)
     ctrls = {s: controller(p, solver=s) for s in ("closed_form", "active_set", "CLARABEL")}
-    ctrls["problem"] = controller(p, solver="CLARABEL", solve_via="problem")
+    ctrls["problem"] = controller(p, solver="CLARABEL", via="problem")
     assert ctrls["problem"]._cvx.direct is None and ctrls["CLARABEL"]._cvx.direct is not None
     long = {s: controller(p, solver=s, control_horizon=3) for s in ("auto", "CLARABEL")}
     for _ in range(5):
@@ -272,7 +274,7 @@ def test_backend_solvers_agree_in_the_controller() -> None:
 # ------------------------------------------------------------------ scheduling
 def test_interpolation_at_a_grid_point_equals_that_points_model() -> None:
     p = plant()
-    sw, ip = controller(p), controller(p, mode="interpolated", theta_w=0.5)
+    sw, ip = controller(p), controller(p, schedule={"mode": "interpolated"}, theta_w=0.5)
     sw_th = controller(p, theta_w=0.5)
     rng = np.random.default_rng(7)
     for op, xbar in enumerate(ip.op_states):
@@ -298,7 +300,7 @@ def test_interpolation_at_a_grid_point_equals_that_points_model() -> None:
 
 @pytest.mark.parametrize("thetas", [[0.0, math.pi / 2, math.pi, -math.pi / 2], [1.0, 2.0, -2.5]])
 def test_nearest_operating_point_is_the_nearest_on_the_circle(thetas) -> None:
-    ctrl = controller(operating_points={"theta": thetas, "V": [1.0, 1.5, 2.0]})
+    ctrl = controller(schedule={"operating_points": {"theta": thetas, "V": [1.0, 1.5, 2.0]}})
     table = ctrl.operating_table()
     rng = np.random.default_rng(8)
     for _ in range(300):
@@ -310,7 +312,7 @@ def test_nearest_operating_point_is_the_nearest_on_the_circle(thetas) -> None:
 
 def test_switched_mode_hysteresis_delays_the_switch() -> None:
     plain = controller()
-    hyst = controller(hysteresis={"theta": 0.1})
+    hyst = controller(schedule={"hysteresis": {"theta": 0.1}})
     g = plain.grid
     at = g.nearest(np.array([0, 0, 0.0, 0, 0, 2.0]))
     past = np.array([0, 0, math.pi / 4 + 0.05, 0, 0, 2.0])
@@ -323,10 +325,11 @@ def test_switched_mode_hysteresis_delays_the_switch() -> None:
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        ({"mode": "scheduled"}, "valid: switched, interpolated, adaptive"),
-        ({"operating_points": {"speed": [1.0]}}, "unknown state label 'speed'"),
+        ({"schedule": {"mode": "scheduled"}}, "valid: switched, interpolated, adaptive"),
+        ({"schedule": {"operating_points": {"speed": [1.0]}}}, "unknown state label 'speed'"),
+        ({"schedule": {"modes": "switched"}}, "unknown key 'modes' in controller.schedule"),
         ({"solver": "closed_form", "control_horizon": 2}, "needs 2 free variables"),
-        ({"hysteresis": {"r": 0.1}}, "not a scheduling state"),
+        ({"schedule": {"hysteresis": {"r": 0.1}}}, "not a scheduling state"),
         ({"control_horizon": 40}, "control_horizon must be in 1..32"),
     ],
 )

@@ -8,7 +8,7 @@ import pytest
 from mpclab.core.errors import ConfigError
 from mpclab.plants.zumo import Zumo
 from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
-from mpclab.supervisors.bug2 import Bug2
+from mpclab.supervisors.bug2 import BoundaryFollowing, Bug2
 
 GO = frozenset({"J1", "J2", "J3", "J4"})
 FOLLOW = frozenset({"J3", "J4", "J5"})
@@ -168,7 +168,7 @@ def test_the_path_keeps_the_clearance_along_a_wall_and_rounds_its_end() -> None:
 
 def test_the_supervisor_hands_over_the_path_only_while_following() -> None:
     sup = Bug2(Zumo(), modes={"go_to_goal": ["J1"], "wall_follow": ["Jp"]},
-               path_speed=0.15, clearance=0.08)
+               boundary=BoundaryFollowing(path_speed=0.15, clearance=0.08))
     sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]))
     assert sup.update(0.0, np.array([0.4, 0.9, 0.0]), NONE)[0] == "go_to_goal"
     assert sup.target(0.0, 10, 0.2) is None
@@ -243,7 +243,8 @@ def within_5cm(x: np.ndarray) -> bool:
     ((0.4, 0.43), within_5cm, False),  # where it measures the goal: not stuck, it is there
 ])
 def test_a_robot_at_its_measured_goal_is_not_stuck(where, arrived, stuck) -> None:
-    sup = Bug2(Zumo(), block_range=0.2, corridor_half_width=0.08, stuck_window=1.0)
+    sup = Bug2(Zumo(), block_range=0.2, corridor_half_width=0.08,
+               stuck={"window": 1.0})
     sup.reset(np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, 0.0]), arrived)
     x = np.array([*where, -np.pi / 2])
     beside = np.array([[x[0] + 0.15, x[1]]])  # near, out of the corridor toward the goal

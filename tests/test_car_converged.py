@@ -87,7 +87,7 @@ def test_closed_loop_arrives_in_two_and_a_half_seconds_every_step_converged() ->
 
 @pytest.mark.parametrize("cap", [1, 3])
 def test_a_cap_is_truncated_and_converged_means_ipopts_optimum(cap: int) -> None:
-    run = controller(f"controller.max_iterations={cap}")
+    run = controller(f"controller.solve.max_iterations={cap}")
     res = simulate(run)
     calls = record.controller_steps(res.steps)
     assert set(calls["status"]) <= {"truncated", "converged"}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import grouped
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi.compile import LONG_BUILD_S, announce_long_build
@@ -33,8 +34,8 @@ def test_car_cvxpy_experiment_runs_on_casadi(run_cfg) -> None:
 
 def _zumo(terms, **kw) -> CasadiMPC:
     plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
-    return CasadiMPC(plant, Objective(terms), horizon=8, dt=0.2,
-                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+    return CasadiMPC(plant, Objective(terms), **grouped(CasadiMPC, horizon=8, dt=0.2,
+                     initial_input={"u1": 2.0, "u2": 2.0}, **kw))
 
 
 def _ctx(active=None, det=None) -> StepContext:
@@ -131,8 +132,9 @@ def test_collision_constraint_keeps_predicted_positions_off_detected_points(solv
     free = _zumo({"J1": GoalAttraction()}, **kw).step(0.0, x, _ctx(None, point[None]))
     con = ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0, sample_error=0, noise=0)
     hard = CasadiMPC(Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]}),
-                     Objective({"J1": GoalAttraction()}, {"obstacles": con}), horizon=8,
-                     dt=0.2, initial_input={"u1": 2.0, "u2": 2.0}, **kw).step(
+                     Objective({"J1": GoalAttraction()}, {"obstacles": con}),
+                     **grouped(CasadiMPC, horizon=8, dt=0.2,
+                               initial_input={"u1": 2.0, "u2": 2.0}, **kw)).step(
         0.0, x, _ctx(None, point[None])
     )
     assert free.ok and hard.ok
@@ -170,12 +172,12 @@ def test_a_horizon_that_builds_for_minutes_says_so_before_it_starts(monkeypatch,
     monkeypatch.setattr(CasadiMPC, "_make_nlp", start)
     plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
     with pytest.raises(_Started) as said:
-        CasadiMPC(plant, Objective(_j1_j2_j4()), horizon=5000, dt=0.2, jit=True)
+        CasadiMPC(plant, Objective(_j1_j2_j4()), horizon=5000, dt=0.2, build={"jit": True})
     text = str(said.value)
     assert "mpclab: controller.horizon=5000: an NLP of about" in text
     assert "writing and compiling its C" in text and "unless it was compiled before" in text
     with pytest.raises(_Started) as said:  # a usual horizon: nothing to say
-        CasadiMPC(plant, Objective(_j1_j2_j4()), horizon=30, dt=0.2, jit=True)
+        CasadiMPC(plant, Objective(_j1_j2_j4()), horizon=30, dt=0.2, build={"jit": True})
     assert str(said.value) == ""
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import grouped
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi.mpc import CasadiMPC
@@ -39,9 +40,9 @@ def _zumo(shooting: str = "single", qp_solver: str = "qpoases", solver: str = "s
     hard = ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0, sample_error=0,
                             noise=0)
     return CasadiMPC(Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]}),
-                     Objective(terms, {"obstacles": hard}), horizon=8, dt=0.2,
+                     Objective(terms, {"obstacles": hard}), **grouped(CasadiMPC, horizon=8, dt=0.2,
                      initial_input={"u1": 2.0, "u2": 2.0}, solver=solver, shooting=shooting,
-                     qp_solver=qp_solver, **kw)
+                     qp_solver=qp_solver, **kw))
 
 
 def _ctx() -> StepContext:
@@ -150,7 +151,8 @@ def test_the_capped_sqp_keeps_its_iterations_and_the_rti_refuses_them() -> None:
     capped = _zumo(solver="sqp_capped", sqp_iterations=3)
     res = capped.step(0.0, X, _ctx())
     assert res.ok and res.iterations == 3 and "prep_s" not in res.info
-    with pytest.raises(ConfigError, match=r"controller\.sqp_iterations=3 .*casadi_sqp_capped"):
+    with pytest.raises(ConfigError,
+                       match=r"controller\.solve\.sqp_iterations=3 .*casadi_sqp_capped"):
         _zumo(sqp_iterations=3)
-    with pytest.raises(ConfigError, match=r"controller\.jit=true .*sqp_rti"):
+    with pytest.raises(ConfigError, match=r"controller\.build\.jit=true .*sqp_rti"):
         _zumo(jit=True)

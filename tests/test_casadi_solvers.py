@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
+from conftest import grouped
 from mpclab.codegen import build as codegen_build
 from mpclab.config.instantiate import build
 from mpclab.constraints.obstacle import ObstacleDistance
@@ -49,8 +50,8 @@ def _mpc(zumo_setup, constraints=None, **kw) -> CasadiMPC:
     objective = build(cfg.objective, "objective")
     if constraints:
         objective = Objective(objective.terms, constraints)
-    return CasadiMPC(plant, objective, horizon=10, dt=0.2, max_detections=20,
-                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+    return CasadiMPC(plant, objective, **grouped(CasadiMPC, horizon=10, dt=0.2, max_detections=20,
+                     initial_input={"u1": 2.0, "u2": 2.0}, **kw))
 
 
 def _ctx(det, active, goal=GOAL) -> StepContext:
@@ -112,7 +113,7 @@ def test_robot_at_rest_facing_sideways_to_its_goal_moves(zumo_setup, opts) -> No
     x, goal = np.array([0.4, 0.8, 0.0]), np.array([0.4, 0.4, -np.pi / 2])
     ctx = _ctx(np.zeros((0, 2)), {"J1", "J2"}, goal)
     still = CasadiMPC(zumo_setup[0], build(zumo_setup[1].objective, "objective"),
-                      horizon=10, dt=0.2, **opts).step(0.0, x, ctx)
+                      **grouped(CasadiMPC, horizon=10, dt=0.2, **opts)).step(0.0, x, ctx)
     assert np.abs(still.u).max() < 1e-3
     res = _mpc(zumo_setup, **opts).step(0.0, x, ctx)  # initial_input's guess
     assert res.status is SolveStatus.converged
@@ -145,8 +146,9 @@ def test_params_pack_by_name() -> None:
 
 def _small(**kw) -> CasadiMPC:  # a small NLP: compiles in about a second at -O0
     plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
-    return CasadiMPC(plant, Objective({"J1": GoalAttraction()}), horizon=3, dt=0.2,
-                     max_detections=0, initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+    return CasadiMPC(plant, Objective({"J1": GoalAttraction()}), **grouped(
+        CasadiMPC, horizon=3, dt=0.2, max_detections=0, initial_input={"u1": 2.0, "u2": 2.0},
+        **kw))
 
 
 def _no_source(write) -> str:
@@ -203,8 +205,9 @@ def test_car_solvers_agree_with_ipopt(opts) -> None:
     plant, objective = build(cfg.plant, "plant"), build(cfg.objective, "objective")
 
     def mpc(**kw) -> CasadiMPC:
-        return CasadiMPC(plant, objective, horizon=10, dt=0.1, tol=1e-8, max_iter=500,
-                         terminal_constraint={"v": 0.0}, **kw)
+        return CasadiMPC(plant, objective, **grouped(
+            CasadiMPC, horizon=10, dt=0.1, tol=1e-8, max_iter=500,
+            terminal_constraint={"v": 0.0}, **kw))
 
     goal = np.zeros(plant.nx)
     ctx = StepContext(goal=goal, target=np.tile(goal, (11, 1)))
@@ -255,5 +258,5 @@ def test_nested_solver_options_reach_the_solver_as_casadis_dotted_names() -> Non
         "fatrop.max_iter": 1, "fatrop.tol": 1e-3, "print_time": False}
     x, goal = np.array([0.4, 0.8, -1.2]), np.array([0.4, 0.4, 0.0])
     ctx = StepContext(goal=goal, target=np.tile(goal, (4, 1)))
-    capped = _small(solver="fatrop", solver_options={"fatrop": {"max_iter": 1}})
+    capped = _small(solver="fatrop", options={"fatrop": {"max_iter": 1}})
     assert capped.step(0.0, x, ctx).status is SolveStatus.truncated  # the cap took effect

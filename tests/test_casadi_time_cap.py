@@ -1,4 +1,4 @@
-"""The CasADi backend's time cap: a solve stopped at ``controller.time_cap_ms`` is truncated.
+"""The CasADi backend's time cap: a solve stopped at ``controller.solve.time_cap_ms`` is truncated.
 
 IPOPT takes the cap as its ``max_wall_time``, sqpmethod (``sqp``, ``sqp_capped``) through an
 iteration callback; either returns its last iterate, applied and counted ``truncated`` in the
@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import grouped
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi.mpc import CasadiMPC
 from mpclab.core.errors import ConfigError
@@ -18,13 +19,13 @@ from mpclab.objectives.potential import GoalAttraction
 from mpclab.plants.zumo import Zumo
 
 #: one microsecond: every solve stops at its first iteration check
-TINY = "controller.time_cap_ms=0.001"
+TINY = "controller.solve.time_cap_ms=0.001"
 
 
 @pytest.mark.parametrize(("overrides", "stop"), [
     (["controller=casadi"], "Maximum_WallTime_Exceeded"),
-    (["controller.jit=false"], "User_Requested_Stop:time_cap"),
-    (["controller=casadi_sqp_capped", "controller.sqp_iterations=5"],
+    (["controller.build.jit=false"], "User_Requested_Stop:time_cap"),
+    (["controller=casadi_sqp_capped", "controller.solve.sqp_iterations=5"],
      "User_Requested_Stop:time_cap"),
 ], ids=["ipopt", "sqp", "sqp_capped"])
 def test_a_tiny_cap_truncates_every_solve_and_the_run_completes(run_cfg, overrides,
@@ -43,8 +44,8 @@ def test_a_tiny_cap_truncates_every_solve_and_the_run_completes(run_cfg, overrid
 
 def _zumo(**kw) -> CasadiMPC:
     return CasadiMPC(Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]}),
-                     Objective({"J1": GoalAttraction()}), horizon=8, dt=0.2,
-                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+                     Objective({"J1": GoalAttraction()}), **grouped(CasadiMPC, horizon=8, dt=0.2,
+                     initial_input={"u1": 2.0, "u2": 2.0}, **kw))
 
 
 @pytest.mark.parametrize("solver", ["ipopt", "sqp"])
@@ -64,7 +65,8 @@ def test_a_generous_cap_changes_nothing(solver) -> None:
     ({"solver": "sqp", "codegen": True}, "generated C"),
 ])
 def test_solvers_without_a_cap_refuse_it_naming_those_with_one(kw, why) -> None:
-    with pytest.raises(ConfigError, match=r"controller\.time_cap_ms=5 needs controller\.solver "
+    with pytest.raises(ConfigError, match=r"controller\.solve\.time_cap_ms=5 needs "
+                       r"controller\.solver "
                        r"one of ipopt, sqp, sqp_capped") as err:
         _zumo(time_cap_ms=5, **kw)
     assert why in str(err.value)
@@ -72,5 +74,5 @@ def test_solvers_without_a_cap_refuse_it_naming_those_with_one(kw, why) -> None:
 
 @pytest.mark.parametrize("value", [0, -1.0, "fast", float("nan")])
 def test_a_bad_cap_is_one_config_error(value) -> None:
-    with pytest.raises(ConfigError, match=r"controller\.time_cap_ms"):
+    with pytest.raises(ConfigError, match=r"controller\.solve\.time_cap_ms"):
         _zumo(solver="ipopt", time_cap_ms=value)

@@ -126,7 +126,7 @@ def _straight_run(world_kw=None):
     scen = ObstacleScenario(
         plant, "between_samples", start={"x": -0.2}, goal={"x": 1.0},
         arrival={"weights": {"x": 1, "y": 1}, "threshold": 1e-4}, t_max=4.0,
-        discs=[[0.1, 0.099]], robot_radius=0.05,
+        layout={"discs": [[0.1, 0.099]]}, robot_radius=0.05,
     )
     world = SimWorld(plant, dt=0.2, **(world_kw or {}))
     run = Run(plant=plant, controller=_Constant(plant, [10.0, 10.0]), scenario=scen,

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import grouped
 from mpclab.codegen import build as codegen_build
 from mpclab.controllers.base import SolveStatus, StepContext
 from mpclab.controllers.casadi.mpc import CasadiMPC
@@ -60,9 +61,10 @@ def test_a_capped_generated_fatrop_is_truncated_as_the_library_says() -> None:
     ctx = StepContext(goal=goal, target=np.tile(goal, (4, 1)))
     results = []
     for codegen in (False, True):
-        c = CasadiMPC(plant, Objective({"J1": GoalAttraction()}), horizon=3, dt=0.2,
+        c = CasadiMPC(plant, Objective({"J1": GoalAttraction()}), **grouped(
+                      CasadiMPC, horizon=3, dt=0.2,
                       max_detections=0, initial_input={"u1": 2.0, "u2": 2.0}, solver="fatrop",
-                      codegen=codegen, jit_flags=["-O0"], max_iter=2)
+                      codegen=codegen, jit_flags=["-O0"], max_iter=2))
         res = c.step(0.0, x, ctx)
         results.append((res.status, res.solver_status, res.iterations))
     assert results[1] == results[0] and results[1][:2] == (SolveStatus.truncated, "1")
@@ -71,7 +73,7 @@ def test_a_capped_generated_fatrop_is_truncated_as_the_library_says() -> None:
 def test_a_capped_generated_solve_is_never_converged() -> None:
     """One SQP iteration from the start does not meet the KKT test: failed, and the base
     class falls back; with the iterations it needs, the same state converges."""
-    capped = build_run(compose([*CAR, "controller.codegen=true", "controller.max_iter=1"]))
+    capped = build_run(compose([*CAR, "controller.codegen=true", "controller.solve.max_iter=1"]))
     full = build_run(compose([*CAR, "controller.codegen=true"]))
     scen = capped.scenario
     for run, expected in ((capped, SolveStatus.failed), (full, SolveStatus.converged)):

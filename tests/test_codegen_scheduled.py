@@ -103,9 +103,9 @@ def test_single_precision_c_drives_the_whole_run_as_the_double(run_cfg, control_
 
 def test_codegen_refuses_what_it_cannot_generate() -> None:
     with pytest.raises(ConfigError, match="mode=switched"):
-        controller(mode="interpolated", codegen=True)
+        controller(schedule={"mode": "interpolated"}, codegen=True)
     with pytest.raises(ConfigError, match="hysteresis"):
-        controller(hysteresis={"theta": 0.1}, codegen=True)
+        controller(schedule={"hysteresis": {"theta": 0.1}}, codegen=True)
     with pytest.raises(ConfigError, match="CVXPY"):
         controller(solver="OSQP", codegen=True)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import grouped
 from mpclab.constraints.base import Constraint
 from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
@@ -31,8 +32,8 @@ def _mpc(cons: dict, **kw) -> CasadiMPC:
     plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
     terms = {"J1": GoalAttraction(), "J2": QuadraticTracking(input_weights={"u1": 0.01,
                                                                               "u2": 0.01})}
-    return CasadiMPC(plant, Objective(terms, cons), horizon=8, dt=0.2,
-                     initial_input={"u1": 2.0, "u2": 2.0}, tol=1e-8, max_iter=300, **kw)
+    return CasadiMPC(plant, Objective(terms, cons), **grouped(CasadiMPC, horizon=8, dt=0.2,
+                     initial_input={"u1": 2.0, "u2": 2.0}, tol=1e-8, max_iter=300, **kw))
 
 
 def _ctx(points) -> StepContext:

@@ -21,6 +21,7 @@ from test_bicycle import controller as bicycle
 from test_bicycle import ctx as bicycle_ctx
 from test_bicycle import random_target
 
+from conftest import grouped
 from mpclab.codegen.build import find_compiler
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.blocking import Blocking
@@ -41,9 +42,9 @@ CAR_BACKENDS = {
     "cvxpy": ("car_cvxpy", []),
     "cvxpy_one_pass": ("car_cvxpy", ["controller.sl=one_pass"]),
     "ipopt": ("car_casadi", ["controller=casadi"]),
-    "ipopt_single": ("car_casadi", ["controller=casadi", "controller.shooting=single"]),
-    "fatrop": ("car_casadi", ["controller=casadi_fatrop", "controller.jit=false"]),
-    "sqp": ("car_casadi", ["controller.jit=false"]),
+    "ipopt_single": ("car_casadi", ["controller=casadi", "controller.build.shooting=single"]),
+    "fatrop": ("car_casadi", ["controller=casadi_fatrop", "controller.build.jit=false"]),
+    "sqp": ("car_casadi", ["controller.build.jit=false"]),
     "sqp_rti": ("car_casadi", ["controller=casadi_rti"]),
     "sqp_capped": ("car_casadi", ["controller=casadi_sqp_capped"]),
     "uno": ("car_casadi", ["controller=casadi_uno"]),
@@ -170,9 +171,9 @@ def _zumo(solver: str, shooting: str, control_horizon) -> CasadiMPC:
     terms = {"J1": GoalAttraction(), "J2": QuadraticTracking(input_weights={"u1": 0.01,
                                                                             "u2": 0.01}),
              "dU": InputRate({"u1": 0.05, "u2": 0.05})}
-    return CasadiMPC(plant, Objective(terms), horizon=8, dt=0.2, solver=solver,
+    return CasadiMPC(plant, Objective(terms), **grouped(CasadiMPC, horizon=8, dt=0.2, solver=solver,
                      shooting=shooting, control_horizon=control_horizon, max_detections=0,
-                     initial_input={"u1": 2.0, "u2": 2.0})
+                     initial_input={"u1": 2.0, "u2": 2.0}))
 
 
 def test_zumo_input_rate_counts_at_block_starts_on_every_casadi_form() -> None:
@@ -214,7 +215,7 @@ def test_compiled_and_generated_solvers_give_the_blocked_plan(backend) -> None:
     """The NLP's functions compiled (``jit``) and the whole solver as generated C
     (``codegen``) solve the blocked NLP as the library solver does."""
     lib = plan(car(backend, "[2,3]"))
-    for option in ("controller.jit=true", "controller.codegen=true"):
+    for option in ("controller.build.jit=true", "controller.codegen=true"):
         experiment, overrides = CAR_BACKENDS[backend]
         cfg = compose([f"+experiment={experiment}", *QUIET, *overrides, option,
                        "controller.control_horizon=[2,3]"])

@@ -6,6 +6,7 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
+from conftest import grouped
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.cvxpy.mpc import CvxpyMPC
 from mpclab.core.errors import ConfigError
@@ -24,7 +25,7 @@ def make(**options):
     obj = Objective(
         {"tracking": QuadraticTracking({"px": 100, "py": 100}, {"a": 0.01, "phi_dot": 0.01})}
     )
-    return car, CvxpyMPC(car, obj, terminal_constraint={"v": 0.0}, **options)
+    return car, CvxpyMPC(car, obj, **grouped(CvxpyMPC, terminal_constraint={"v": 0.0}, **options))
 
 
 def ctx(T: int = 10) -> StepContext:
@@ -89,7 +90,7 @@ def test_second_step_linearizes_about_the_shifted_plan() -> None:
 @pytest.mark.parametrize("sl", ["one_pass", "converge"])
 def test_osqp_and_clarabel_agree(sl: str) -> None:
     _, c1 = make(solver="CLARABEL", sl=sl)
-    _, c2 = make(solver="OSQP", sl=sl, solver_options={"eps_abs": 1e-9, "eps_rel": 1e-9})
+    _, c2 = make(solver="OSQP", sl=sl, options={"eps_abs": 1e-9, "eps_rel": 1e-9})
     r1, r2 = c1.step(0.0, X0, ctx()), c2.step(0.0, X0, ctx())
     np.testing.assert_allclose(r1.u, r2.u, atol=1e-4)
 
@@ -98,7 +99,7 @@ def test_osqp_and_clarabel_agree(sl: str) -> None:
 def test_direct_path_equals_problem_solve(sl: str) -> None:
     """The compiled-data path and ``Problem.solve`` give the same plan and cost."""
     _, direct = make(sl=sl)
-    _, problem = make(solve_via="problem", sl=sl)
+    _, problem = make(via="problem", sl=sl)
     assert direct.direct is not None and problem.direct is None
     car = direct.plant
     x = X0
@@ -129,10 +130,10 @@ def test_direct_path_data_equal_cvxpy_at_random_parameters() -> None:
 
 
 def test_direct_path_needs_clarabel_and_known_settings() -> None:
-    with pytest.raises(ConfigError, match="solve_via=direct needs solver CLARABEL, not OSQP"):
-        make(solver="OSQP", solve_via="direct")
+    with pytest.raises(ConfigError, match="via=direct needs solver CLARABEL, not OSQP"):
+        make(solver="OSQP", via="direct")
     with pytest.raises(ConfigError, match=r"unknown Clarabel setting 'max_iters'.*max_iter"):
-        make(solver_options={"max_iters": 10})
+        make(options={"max_iters": 10})
     _, ctrl = make(solver="OSQP")  # auto: OSQP goes through Problem.solve
     assert ctrl.direct is None
 
@@ -149,14 +150,14 @@ def test_direct_path_that_cannot_be_built_falls_back_or_refuses(
     with pytest.warns(UserWarning, match="solving through Problem.solve: the compiled data"):
         _, ctrl = make()  # auto: warn and take Problem.solve
     assert ctrl.direct is None and ctrl.step(0.0, X0, ctx()).ok
-    with pytest.raises(ConfigError, match="solve_via=direct is not possible: the compiled"):
-        make(solve_via="direct")
+    with pytest.raises(ConfigError, match="via=direct is not possible: the compiled"):
+        make(via="direct")
 
 
 @pytest.mark.parametrize("via", ["direct", "problem"])
 def test_infeasible_qp_falls_back_with_its_status(via: str) -> None:
     """A real infeasible QP: at 100 m/s, |a| <= 10 cannot stop the car within 1 s."""
-    _, ctrl = make(solve_via=via)
+    _, ctrl = make(via=via)
     fast = X0.copy()
     fast[3] = 100.0
     res = ctrl.step(0.0, fast, ctx())
@@ -170,7 +171,7 @@ def test_infeasible_qp_falls_back_with_its_status(via: str) -> None:
 
 
 def test_solver_exception_falls_back_to_shifted_plan(monkeypatch: pytest.MonkeyPatch) -> None:
-    _, ctrl = make(solve_via="problem")
+    _, ctrl = make(via="problem")
     first = ctrl.step(0.0, X0, ctx())
 
     def broken(*args, **kwargs):
@@ -201,7 +202,7 @@ def test_direct_solver_crash_is_survived(monkeypatch: pytest.MonkeyPatch) -> Non
 
 
 def test_failure_with_no_plan_gives_zero_input(monkeypatch: pytest.MonkeyPatch) -> None:
-    _, ctrl = make(solve_via="problem")
+    _, ctrl = make(via="problem")
 
     def infeasible(*args, **kwargs):
         ctrl.problem._status = cp.INFEASIBLE  # what a solver reports for an infeasible QP
@@ -243,10 +244,10 @@ def test_converge_needs_every_term_in_casadi_too() -> None:
 
 @pytest.mark.parametrize(("options", "message"), [
     ({"sl": "converged"}, r"controller.sl: unknown choice 'converged'; valid: converge, one_pass"),
-    ({"hessian": "bfgs"}, r"controller.hessian: unknown choice 'bfgs'; valid: exact"),
-    ({"max_iterations": 0}, r"controller.max_iterations must be >= 1, got 0"),
-    ({"tol": 0.0}, r"controller.tol must be > 0, got 0.0"),
-    ({"trust_radius": -1}, r"controller.trust_radius must be in \(0, 1000\], got -1"),
+    ({"hessian": "bfgs"}, r"controller.solve.hessian: unknown choice 'bfgs'; valid: exact"),
+    ({"max_iterations": 0}, r"controller.solve.max_iterations must be >= 1, got 0"),
+    ({"tol": 0.0}, r"controller.solve.tol must be > 0, got 0.0"),
+    ({"trust_radius": -1}, r"controller.solve.trust_radius must be in \(0, 1000\], got -1"),
     ({"initial_input": {"accel": 1.0}}, r"initial_input: unknown input label 'accel'"),
 ])
 def test_bad_options_are_named(options: dict, message: str) -> None:

@@ -13,7 +13,7 @@ from mpclab.runner.single_run import CONF_DIR, build_run, compose
 
 CVXPY_VARIANTS = {
     "car_cvxpy-clarabel-direct": ["+experiment=car_cvxpy"],
-    "car_cvxpy-clarabel-problem": ["+experiment=car_cvxpy", "controller.solve_via=problem"],
+    "car_cvxpy-clarabel-problem": ["+experiment=car_cvxpy", "controller.solve.via=problem"],
     "car_cvxpy-osqp": ["+experiment=car_cvxpy", "controller.solver=OSQP"],  # warm-started
     "bicycle-clarabel-direct": ["+experiment=bicycle_scheduled", "controller.solver=CLARABEL"],
     "bicycle-osqp": ["+experiment=bicycle_scheduled", "controller.solver=OSQP",

@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from conftest import compose_cfg
+from conftest import compose_cfg, grouped
 from mpclab.constraints.obstacle import ObstacleDistance, SensedRegion
 from mpclab.controllers.base import StepContext
 from mpclab.controllers.casadi.mpc import CasadiMPC
@@ -41,8 +41,9 @@ def _plant() -> Zumo:
 
 
 def _cvxpy(mode: str | None, **kw) -> CvxpyMPC:
-    return CvxpyMPC(_plant(), _objective(mode), horizon=T, dt=DT, max_iterations=100,
-                    initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+    return CvxpyMPC(_plant(), _objective(mode), **grouped(
+                    CvxpyMPC, horizon=T, dt=DT, max_iterations=100,
+                    initial_input={"u1": 2.0, "u2": 2.0}, **kw))
 
 
 def _ctx(points) -> StepContext:
@@ -87,9 +88,10 @@ def test_converged_plan_agrees_with_ipopt(mode) -> None:
     # at the wall the two stop at different stationary points (the SL before the wall, at
     # the saddle of turning either way; IPOPT turned), so this poses the disc off the way
     sl = _cvxpy(mode).step(0.0, X0, _ctx(DISC))
-    nlp = CasadiMPC(_plant(), _objective(mode), horizon=T, dt=DT, solver="ipopt",
+    nlp = CasadiMPC(_plant(), _objective(mode), **grouped(
+                    CasadiMPC, horizon=T, dt=DT, solver="ipopt",
                     initial_input={"u1": 2.0, "u2": 2.0}, tol=1e-9, max_iter=500,
-                    ).step(0.0, X0, _ctx(DISC))
+                    )).step(0.0, X0, _ctx(DISC))
     assert sl.status == "converged" and nlp.status == "converged"
     assert sl.u_pred == pytest.approx(nlp.u_pred, abs=1e-2)
     assert sl.x_pred == pytest.approx(nlp.x_pred, abs=1e-3)
@@ -149,8 +151,9 @@ def test_more_detections_than_room_keep_the_nearest() -> None:
 
 def test_sensed_region_keeps_the_plan_within_range() -> None:
     obj = Objective(_objective(None).terms, {"r": SensedRegion(max_range=0.2)})
-    step = CvxpyMPC(_plant(), obj, horizon=T, dt=DT, initial_input={"u1": 2.0, "u2": 2.0},
-                    max_iterations=100).step(0.0, X0, _ctx([]))
+    step = CvxpyMPC(_plant(), obj, **grouped(
+                    CvxpyMPC, horizon=T, dt=DT, initial_input={"u1": 2.0, "u2": 2.0},
+                    max_iterations=100)).step(0.0, X0, _ctx([]))
     assert step.ok and np.hypot(*(step.x_pred[1:, :2] - X0[:2]).T).max() <= 0.2 + 1e-5
 
 

@@ -19,8 +19,10 @@ def test_help_shows_the_experiment_chosen_and_its_controllers_options(capsys) ->
     assert "The config of: +experiment=car_cvxpy controller.horizon=7" in text
     assert "name: car_cvxpy" in text and "horizon: 7" in text
     assert "Options of controller mpclab.controllers.cvxpy.mpc.CvxpyMPC" in text
-    line = next(ln for ln in text.splitlines() if ln.strip().startswith("max_iterations"))
-    assert "truncated" in line  # its meaning, from the constructor's docstring
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("solve.max_iterations"))
+    assert "truncated" in line  # an option group's field, its meaning from the group's docstring
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("sl "))
+    assert "converge" in line  # its meaning, from the constructor's docstring
     assert not any(ln.strip().startswith("plant") for ln in text.splitlines()
                    if "Options of" not in ln and ln.startswith("  plant,"))
 

@@ -21,7 +21,7 @@ BICYCLE_TURN = ["+experiment=bicycle_scheduled", "scenario=turn", "sim=embedded_
 
 def test_late_apply_acts_when_ready_and_skips_the_busy_samples():
     plant = KinematicCar()
-    w = SimWorld(plant, dt=0.02, latency=33.8, deadline_policy="late_apply")
+    w = SimWorld(plant, dt=0.02, latency=33.8, timing={"deadline_policy": "late_apply"})
     w.reset(plant.nu)
     u = np.array([0.5, 0.1])
     tm = w.timing(u, np.tile(u, (4, 1)), 0.0)
@@ -56,7 +56,7 @@ def test_one_sample_delay_acts_at_the_next_sample_whatever_the_solve_took():
 def test_late_apply_tracks_the_turn_where_hold_never_acts(run_cfg):
     """Study C's 33.8 ms at a 20 ms sample: under late_apply every input acts when ready
     and a solve runs every second sample; the car arrives."""
-    result, _ = run_cfg([*BICYCLE_TURN, "sim.deadline_policy=late_apply"])
+    result, _ = run_cfg([*BICYCLE_TURN, "sim.timing.deadline_policy=late_apply"])
     s = result.summary
     assert s["status"] == "arrived", s
     assert s["sim_deadline_policy"] == "late_apply"
@@ -88,7 +88,7 @@ def test_delay_compensation_recovers_the_ideal_arrival(run_cfg, experiment):
     the ideal loop, with either backend."""
     ideal, _ = run_cfg([f"+experiment={experiment}"], name="ideal")
     late, _ = run_cfg([f"+experiment={experiment}", "sim.latency=90",
-                       "controller.delay_compensation=true", "scenario.t_max=6"], name="late")
+                       "sim.timing.delay_compensation=true", "scenario.t_max=6"], name="late")
     assert ideal.summary["arrived"] and late.summary["arrived"], late.summary
     assert late.summary["arrival_time_s"] <= ideal.summary["arrival_time_s"] + 0.2 + 1e-9
 
@@ -125,7 +125,7 @@ def test_recorded_latency_reads_a_runs_step_log(tmp_path):
     pd.DataFrame({"t": [0.0, 0.1, 0.2], "latency_s": [0.01, 0.03, np.nan]}).to_parquet(steps)
     draws = []
     for seed in (5, 5, 6):
-        w = SimWorld(plant, seed=seed, latency="recorded", latency_profile=str(steps))
+        w = SimWorld(plant, seed=seed, latency="recorded", timing={"latency_profile": str(steps)})
         w.reset(plant.nu)
         assert w.expected_latency_s() == pytest.approx(0.02)  # the median
         u = np.zeros((1, plant.nu))
@@ -135,13 +135,13 @@ def test_recorded_latency_reads_a_runs_step_log(tmp_path):
 
 
 @pytest.mark.parametrize("profile, words", [
-    (None, ["sim.latency_profile", "latency_s"]),
-    ("no/such.csv", ["sim.latency_profile", "no/such.csv"]),
-    ("sim/nominal.yaml", ["sim.latency_profile", ".csv or .parquet"]),
+    (None, ["sim.timing.latency_profile", "latency_s"]),
+    ("no/such.csv", ["sim.timing.latency_profile", "no/such.csv"]),
+    ("sim/nominal.yaml", ["sim.timing.latency_profile", ".csv or .parquet"]),
 ])
 def test_a_bad_latency_profile_is_refused_by_name(profile, words):
     with pytest.raises(ConfigError) as err:
-        SimWorld(KinematicCar(), latency="recorded", latency_profile=profile)
+        SimWorld(KinematicCar(), latency="recorded", timing={"latency_profile": profile})
     for word in words:
         assert word in str(err.value), str(err.value)
 
@@ -150,4 +150,4 @@ def test_a_profile_without_latencies_is_refused(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,solve\n0,1\n")
     with pytest.raises(ConfigError, match="no latency_s column; columns: t, solve"):
-        SimWorld(KinematicCar(), latency="recorded", latency_profile=str(bad))
+        SimWorld(KinematicCar(), latency="recorded", timing={"latency_profile": str(bad)})

@@ -1,5 +1,5 @@
-"""Odometry localization and the actuator model (``sim.localization``, ``sim.odometry``,
-``sim.localization_fix``, ``sim.actuator``).
+"""Odometry localization and the actuator model (``sim.localization``: its ``source``,
+``odometry`` and ``fix``; ``sim.actuator``).
 
 Exact equality only where one computation is repeated in one process (the same config and
 seed twice); the rest compares with tolerances against the analytic answer.
@@ -43,7 +43,7 @@ def _wiggle(n: int) -> list[np.ndarray]:
                                    {"actuator": {"rate_limit": 40.0, "time_constant_s": 0.02}}],
                          ids=["plain", "latency", "lag", "lag_and_rate_limit"])
 def test_odometry_with_the_plants_parameters_is_the_truth(extra):
-    world = SimWorld(Zumo(), dt=0.1, localization="odometry", **extra)
+    world = SimWorld(Zumo(), dt=0.1, localization={"source": "odometry"}, **extra)
     for x, seen in _drive(world, np.array([0.1, 0.2, 0.3]), _wiggle(40)):
         np.testing.assert_allclose(seen, x, atol=1e-9)
 
@@ -51,17 +51,17 @@ def test_odometry_with_the_plants_parameters_is_the_truth(extra):
 def test_dead_reckoning_is_generic_over_plants():
     """The car's inputs are not wheel speeds: its odometry integrates the model's rhs."""
     plant = KinematicCar()
-    world = SimWorld(plant, dt=0.1, localization="odometry")
+    world = SimWorld(plant, dt=0.1, localization={"source": "odometry"})
     inputs = [np.array([0.5 * math.cos(0.1 * k), 0.2 * math.sin(0.3 * k)]) for k in range(30)]
     for x, seen in _drive(world, np.array([0.0, 0.0, 0.1, 1.0, 0.0]), inputs):
         np.testing.assert_allclose(seen, x, atol=1e-9)
-    other = SimWorld(plant, dt=0.1, localization="odometry", plant_params={"l": 1.1})
+    other = SimWorld(plant, dt=0.1, localization={"source": "odometry"}, plant_params={"l": 1.1})
     x, seen = _drive(other, np.array([0.0, 0.0, 0.1, 1.0, 0.0]), inputs)[-1]
     assert abs(seen[2] - x[2]) > 1e-3  # a longer wheelbase turns less than the model believes
 
 
 def test_a_larger_wheel_drives_five_percent_further_than_the_odometry_believes():
-    world = SimWorld(Zumo(), dt=0.2, localization="odometry", plant_params={"r": 0.021})
+    world = SimWorld(Zumo(), dt=0.2, localization={"source": "odometry"}, plant_params={"r": 0.021})
     x, seen = _drive(world, np.zeros(3), [np.array([5.0, 5.0])] * 50)[-1]
     # 10 s at 5 rad/s: the model's wheel 0.020 * 50 = 1.00 m, the true one 1.05 m
     assert seen[0] == pytest.approx(1.0, rel=1e-9)
@@ -72,8 +72,8 @@ def test_a_larger_wheel_drives_five_percent_further_than_the_odometry_believes()
 
 def test_encoder_counts_err_by_at_most_one_step():
     q = 2 * math.pi / 1200  # a 1200-count wheel encoder [rad]
-    world = SimWorld(Zumo(), dt=0.1, localization="odometry",
-                     odometry={"quantum": {"u1": q, "u2": q}})
+    world = SimWorld(Zumo(), dt=0.1, localization={
+        "source": "odometry", "odometry": {"quantum": {"u1": q, "u2": q}}})
     worst = 0.0
     for x, seen in _drive(world, np.zeros(3), [np.array([3.3, 3.3])] * 40):
         worst = max(worst, abs(seen[0] - x[0]))
@@ -83,9 +83,11 @@ def test_encoder_counts_err_by_at_most_one_step():
 
 def test_slip_and_encoder_noise_make_the_estimate_drift_and_repeat():
     conf = {"slip_std": 0.05, "input_std": {"u1": 0.2}}
-    a = _drive(SimWorld(Zumo(), dt=0.1, seed=3, localization="odometry", odometry=conf),
+    a = _drive(SimWorld(Zumo(), dt=0.1, seed=3,
+                        localization={"source": "odometry", "odometry": conf}),
                np.zeros(3), _wiggle(30))
-    b = _drive(SimWorld(Zumo(), dt=0.1, seed=3, localization="odometry", odometry=conf),
+    b = _drive(SimWorld(Zumo(), dt=0.1, seed=3,
+                        localization={"source": "odometry", "odometry": conf}),
                np.zeros(3), _wiggle(30))
     for (xa, sa), (xb, sb) in zip(a, b, strict=True):
         np.testing.assert_array_equal(sa, sb)
@@ -94,8 +96,8 @@ def test_slip_and_encoder_noise_make_the_estimate_drift_and_repeat():
 
 
 def test_an_exact_fix_with_gain_one_resets_position_and_heading():
-    world = SimWorld(Zumo(), dt=0.1, localization="odometry", plant_params={"r": 0.021},
-                     localization_fix={"period_s": 0.5})
+    world = SimWorld(Zumo(), dt=0.1, plant_params={"r": 0.021},
+                     localization={"source": "odometry", "fix": {"period_s": 0.5}})
     seen = _drive(world, np.zeros(3), _wiggle(20))
     for k, (x, est) in enumerate(seen):
         if k % 5 == 0:  # t = 0, 0.5, 1.0, ...: just after a fix
@@ -107,9 +109,9 @@ def test_an_exact_fix_with_gain_one_resets_position_and_heading():
 
 def test_a_fix_with_a_smaller_gain_moves_part_of_the_way():
     plant = Zumo()
-    world = SimWorld(plant, dt=0.1, localization="odometry", plant_params={"r": 0.021},
-                     localization_fix={"period_s": 1.0, "gain": 0.25, "std": {"position": 0}})
-    before = SimWorld(plant, dt=0.1, localization="odometry", plant_params={"r": 0.021})
+    world = SimWorld(plant, dt=0.1, plant_params={"r": 0.021}, localization={
+        "source": "odometry", "fix": {"period_s": 1.0, "gain": 0.25, "std": {"position": 0}}})
+    before = SimWorld(plant, dt=0.1, localization={"source": "odometry"}, plant_params={"r": 0.021})
     x, est = _drive(world, np.zeros(3), _wiggle(10))[-1]
     _, free = _drive(before, np.zeros(3), _wiggle(10))[-1]
     np.testing.assert_allclose(est[:2], free[:2] + 0.25 * (x[:2] - free[:2]), atol=1e-12)
@@ -155,9 +157,9 @@ def test_a_rate_limit_ramps_then_holds():
 
 
 def test_a_closed_loop_run_logs_commanded_and_actual_inputs_and_repeats(run_cfg):
-    world = [*ZUMO, "sim.localization=odometry", "sim.plant_params.r=0.021",
-             "sim.odometry.slip_std=0.02", "sim.localization_fix.period_s=1.0",
-             "sim.localization_fix.std.position=0.005", "sim.actuator.time_constant_s=0.05",
+    world = [*ZUMO, "sim.localization.source=odometry", "sim.plant_params.r=0.021",
+             "sim.localization.odometry.slip_std=0.02", "sim.localization.fix.period_s=1.0",
+             "sim.localization.fix.std.position=0.005", "sim.actuator.time_constant_s=0.05",
              "scenario.t_max=3.0", "seed=7"]
     a, _ = run_cfg(world, name="a")
     b, _ = run_cfg(world, name="b")
@@ -183,19 +185,22 @@ def test_the_default_world_adds_nothing(run_cfg):
 
 
 @pytest.mark.parametrize("options, match", [
-    ({"localization": "gps"}, "sim.localization: unknown choice 'gps'; valid: truth, odometry"),
-    ({"localization_fix": {"period_s": 1.0}}, "only with sim.localization=odometry"),
-    ({"odometry": {"slip_std": 0.1}}, "only with sim.localization=odometry"),
-    ({"localization": "odometry", "localization_fix": {"period_s": 0}},
-     "sim.localization_fix.period_s: expected a finite number > 0, got 0"),
-    ({"localization": "odometry", "localization_fix": {"period_s": 1, "gain": 1.5}},
-     r"sim.localization_fix.gain: expected a number in \(0, 1\], got 1.5"),
-    ({"localization": "odometry", "localization_fix": {"period_s": 1, "std": {"z": 1}}},
-     "unknown key 'z' in sim.localization_fix.std"),
-    ({"localization": "odometry", "odometry": {"quantum": {"u1": 0}}},
-     "sim.odometry.quantum.u1: expected a finite number > 0, got 0"),
-    ({"localization": "odometry", "odometry": {"input_std": {"v": 0.1}}},
-     "unknown key 'v' in sim.odometry.input_std"),
+    ({"localization": {"source": "gps"}},
+     "sim.localization.source: unknown choice 'gps'; valid: truth, odometry"),
+    ({"localization": {"fix": {"period_s": 1.0}}},
+     "only with sim.localization.source=odometry"),
+    ({"localization": {"odometry": {"slip_std": 0.1}}},
+     "only with sim.localization.source=odometry"),
+    ({"localization": {"source": "odometry", "fix": {"period_s": 0}}},
+     "sim.localization.fix.period_s: expected a finite number > 0, got 0"),
+    ({"localization": {"source": "odometry", "fix": {"period_s": 1, "gain": 1.5}}},
+     r"sim.localization.fix.gain: expected a number in \(0, 1\], got 1.5"),
+    ({"localization": {"source": "odometry", "fix": {"period_s": 1, "std": {"z": 1}}}},
+     "unknown key 'z' in sim.localization.fix.std"),
+    ({"localization": {"source": "odometry", "odometry": {"quantum": {"u1": 0}}}},
+     "sim.localization.odometry.quantum.u1: expected a finite number > 0, got 0"),
+    ({"localization": {"source": "odometry", "odometry": {"input_std": {"v": 0.1}}}},
+     "unknown key 'v' in sim.localization.odometry.input_std"),
     ({"actuator": {"time_constant_s": -0.1}},
      "sim.actuator.time_constant_s: expected a finite number > 0, got -0.1"),
     ({"actuator": {"rate_limit": "fast"}},

@@ -9,6 +9,7 @@ it builds on (its schema's, or the YAML it extends), so that a default lives in 
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import inspect
 from pathlib import Path
@@ -52,15 +53,32 @@ def test_schema_names_the_constructors_options_with_its_defaults(group, name, cl
     conf = schema(group, name)
     opts = options(cls, group)
     assert set(conf) - HYDRA_KEYS == set(opts), "schema and constructor name other options"
+    for key, default in _plain_defaults(opts):
+        if default is None and isinstance(_at(conf, key), (dict, list)):
+            continue  # None: the constructor's own default structure, spelt in the schema
+        assert _at(conf, key) == default, \
+            f"{key}: schema {_at(conf, key)!r}, constructor {default!r}"
+
+
+def _plain_defaults(opts: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """``(dotted key, default)`` of every plain default, an option group's fields included."""
+    found = []
     for key, default in opts.items():
-        if default is inspect.Parameter.empty:
+        if dataclasses.is_dataclass(default):  # an option group: its fields' defaults
+            fields = {f.name: getattr(default, f.name) for f in dataclasses.fields(default)}
+            found += _plain_defaults(fields, f"{prefix}{key}.")
             continue
         if isinstance(default, enum.Enum):
             default = default.value
         if isinstance(default, (int, float, str, bool)) or default is None:
-            if default is None and isinstance(conf[key], (dict, list)):
-                continue  # None: the constructor's own default structure, spelt in the schema
-            assert conf[key] == default, f"{key}: schema {conf[key]!r}, constructor {default!r}"
+            found.append((prefix + key, default))
+    return found
+
+
+def _at(conf: dict[str, Any], dotted: str) -> Any:
+    for part in dotted.split("."):
+        conf = conf[part]
+    return conf
 
 
 def _schema_of(doc: dict[str, Any], group: str) -> tuple[str | None, str | None]:

@@ -8,6 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from conftest import grouped
 from mpclab.controllers.base import ControlStep, SolveStatus, StepContext
 from mpclab.controllers.casadi.mpc import CasadiMPC, read_status
 from mpclab.controllers.casadi.solvers import CALL_FAILED
@@ -20,8 +21,8 @@ from mpclab.record import files as record
 
 def _zumo(**kw) -> CasadiMPC:
     plant = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
-    return CasadiMPC(plant, Objective({"J1": GoalAttraction()}), horizon=6, dt=0.2,
-                     initial_input={"u1": 2.0, "u2": 2.0}, **kw)
+    return CasadiMPC(plant, Objective({"J1": GoalAttraction()}), **grouped(
+        CasadiMPC, horizon=6, dt=0.2, initial_input={"u1": 2.0, "u2": 2.0}, **kw))
 
 
 def _ctx() -> StepContext:
@@ -126,7 +127,7 @@ def test_a_status_outside_the_vocabulary_is_a_counted_failure(word, monkeypatch)
 
 
 def test_summary_counts_every_status(run_cfg) -> None:
-    res, _ = run_cfg(["+experiment=car_casadi", "controller=casadi", "controller.max_iter=3"])
+    res, _ = run_cfg(["+experiment=car_casadi", "controller=casadi", "controller.solve.max_iter=3"])
     s = res.summary
     counts = {st: s[f"solves_{st}"] for st in SolveStatus}
     assert sum(counts.values()) == s["n_steps"]
@@ -139,11 +140,13 @@ def test_summary_counts_every_status(run_cfg) -> None:
 
 
 @pytest.mark.parametrize(("overrides", "cap"), [
-    (["+experiment=car_casadi", "controller.max_iter=1"], 1),          # SQP + qrqp
-    (["+experiment=car_casadi", "controller.max_iter=3"], 3),
-    (["+experiment=zumo_bug2", "controller.max_iter=3"], 3),           # fatrop
-    (["+experiment=zumo_bug2", "controller=casadi_sqp_capped", "controller.sqp_iterations=1"], 1),
-    (["+experiment=zumo_bug2", "controller=casadi_sqp_capped", "controller.sqp_iterations=5"], 5),
+    (["+experiment=car_casadi", "controller.solve.max_iter=1"], 1),          # SQP + qrqp
+    (["+experiment=car_casadi", "controller.solve.max_iter=3"], 3),
+    (["+experiment=zumo_bug2", "controller.solve.max_iter=3"], 3),           # fatrop
+    (["+experiment=zumo_bug2", "controller=casadi_sqp_capped",
+      "controller.solve.sqp_iterations=1"], 1),
+    (["+experiment=zumo_bug2", "controller=casadi_sqp_capped",
+      "controller.solve.sqp_iterations=5"], 5),
 ], ids=["car_sqp_1", "car_sqp_3", "zumo_fatrop_3", "zumo_rti_1", "zumo_rti_5"])
 def test_any_iteration_cap_is_truncated_never_an_exception(run_cfg, overrides, cap) -> None:
     res, _ = run_cfg([*overrides, "scenario.t_max=2.0"])

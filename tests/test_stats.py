@@ -52,18 +52,18 @@ def test_robustness_rows_and_figure(tmp_path):
     status = ["arrived"] * 5 + ["arrived", "timeout", "arrived", "stalled", "timeout"]
     df = pd.DataFrame({
         "backend": ["casadi"] * 10, "scenario": ["zumo_dead_end"] * 10, "status": status,
-        "sim.latency_scale": [1] * 5 + [10] * 5, "seed": list(range(10)),
+        "sim.timing.latency_scale": [1] * 5 + [10] * 5, "seed": list(range(10)),
         "arrival_time_s": [2.5, 2.6, 2.5, 2.5, 2.7, 3.0, None, 3.2, None, None],
         "run_dir": [str(tmp_path / f"run{i}") for i in range(10)],  # no step logs: no times
     })
-    df.attrs["params"] = ["sim.latency_scale", "seed"]
-    assert robustness_levels(df) == ["sim.latency_scale"]
-    t = group_table(df).set_index("sim.latency_scale")  # one row per level, seeds pooled
+    df.attrs["params"] = ["sim.timing.latency_scale", "seed"]
+    assert robustness_levels(df) == ["sim.timing.latency_scale"]
+    t = group_table(df).set_index("sim.timing.latency_scale")  # one row per level, seeds pooled
     assert t.loc[1, "success_rate"] == 1.0 and t.loc[10, "success_rate"] == 0.4
     assert (t.loc[10, "success_low"], t.loc[10, "success_high"]) == pytest.approx(
         clopper_pearson(2, 5))
     assert t.loc[10, "arrival_median_s"] == pytest.approx(3.1)
-    path = plot_robustness(group_table(df), "sim.latency_scale", tmp_path / "r.png")
+    path = plot_robustness(group_table(df), "sim.timing.latency_scale", tmp_path / "r.png")
     assert path.stat().st_size > 1000
 
 

@@ -68,7 +68,8 @@ def test_bug2_dead_end_on_two_sqp_steps_with_the_hard_constraint(run_cfg) -> Non
     of its calls fail (the Hessian's eigen-decomposition for its convexification does not
     converge): each is counted failed and falls back."""
     res, _ = run_cfg(["+experiment=zumo_bug2", "controller=casadi_sqp_capped",
-                      "controller.sqp_iterations=2", "objective.constraints.obstacles.mode=hard"])
+                      "controller.solve.sqp_iterations=2",
+                      "objective.constraints.obstacles.mode=hard"])
     s = res.summary
     assert s["status"] == "arrived", s
     assert s["solver_failures"] == s["solves_failed"] <= 0.1 * len(res.steps), s

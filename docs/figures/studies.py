@@ -162,9 +162,9 @@ def study_b_right_hand() -> Path:
     ip = [plant.state_index(s) for s in plant.position]
     ih = plant.state_index(plant.heading)
     # the robot facing the wall (toward its goal), its body 5 cm from the discs' surfaces
-    wall_y = float(cfg.scenario.walls[0].start[1])
+    wall_y = float(cfg.scenario.layout.walls[0].start[1])
     pose = sc.x0.copy()
-    pose[ip[1]] = wall_y + float(cfg.scenario.obstacle_radius) + sc.robot_radius + 0.05
+    pose[ip[1]] = wall_y + float(cfg.scenario.layout.obstacle_radius) + sc.robot_radius + 0.05
     pose[ih] = -np.pi / 2
     fig, ax = plt.subplots(figsize=(6.6, 5.0))
     draw_zumo(ax, sc, plant, pose, legend=True, robot="facing the wall")
@@ -222,7 +222,7 @@ def draw_path(ax: Any, cfg: Any, sc: Any, title: str) -> None:
     ax.plot(end[sc.plant.state_index("px")], end[sc.plant.state_index("py")], "s",
             color=GOAL, ms=6, label="end of the reference, t_end (arrival: within 0.5 m)")
     if "theta" in ref:
-        ops = [float(v) for v in cfg.controller.operating_points.theta]
+        ops = [float(v) for v in cfg.controller.schedule.operating_points.theta]
         idx = nearest(ref["theta"].to_numpy(), ops, periodic=True)
         sw = np.flatnonzero(np.diff(idx)) + 1
         ax.plot(ref["px"].to_numpy()[sw], ref["py"].to_numpy()[sw], "D", color="tab:purple",
@@ -251,7 +251,7 @@ def study_c() -> Path:
             tax = axes[1]
             tax.plot(ref["t"], ref["py"], "-", color="tab:blue", label="py reference [m]")
             tax.plot(ref["t"], ref["V"], "-", color="tab:red", label="V reference [m/s]")
-            vs = [float(v) for v in cfg.controller.operating_points.V]
+            vs = [float(v) for v in cfg.controller.schedule.operating_points.V]
             tax.axhline(0.5 * (vs[0] + vs[1]), color="tab:red", ls=":", lw=0.9,
                         label=f"V = {0.5 * (vs[0] + vs[1]):g} m/s: nearest speed point changes")
             tax.set_xlabel("t [s]")

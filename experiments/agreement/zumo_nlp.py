@@ -64,7 +64,7 @@ from mpclab.runner.single_run import build_run, compose  # noqa: E402
 BACKENDS: dict[str, list[str]] = {
     "fatrop": ["controller=casadi_fatrop"],
     "ipopt": ["controller=casadi"],
-    "sqp_capped3": ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
+    "sqp_capped3": ["controller=casadi_sqp_capped", "controller.solve.sqp_iterations=3"],
 }
 NN_WEIGHTS = ROOT / "conf/weights/zumo_nn.npz"
 QUIET = ["recorder=none", "progress=false", "figures.enabled=false", "sim=nominal"]

@@ -13,7 +13,7 @@ step, and solves stopped at a wall-clock cap.
    whole call. Per step the ratio feedback / SQP, wall and CPU: medians (of the times and
    of the ratio), and the steps whose ratio is under one half.
 2. **Closed loops** of each controller on its own: status, arrival, statuses counted.
-3. **Time caps** (``controller.time_cap_ms``): closed loops whose solves stop at the cap,
+3. **Time caps** (``controller.solve.time_cap_ms``): closed loops whose solves stop at the cap,
    their wall time beyond it (the overrun of each call after the first, which also builds
    the solver's memory: the solver's last iteration past the deadline and the call's own
    overhead; negative for a call that ended before the cap) and the truncated solves the
@@ -42,7 +42,7 @@ from mpclab.runner.single_run import build_run, compose  # noqa: E402
 
 QUIET = ["recorder=none", "figures.enabled=false", "progress=false"]
 RTI = ["controller=casadi_rti"]
-SQP1 = ["controller=casadi_sqp_capped", "controller.sqp_iterations=1"]
+SQP1 = ["controller=casadi_sqp_capped", "controller.solve.sqp_iterations=1"]
 #: experiment -> its base overrides
 EXPERIMENTS = {"car_casadi": ["+experiment=car_casadi"],
                "zumo_bug2 (dead end)": ["+experiment=zumo_bug2"]}
@@ -54,7 +54,7 @@ CAPS = [
     ("car_casadi", "sqp (jit)", [], 1.0),
     ("zumo_bug2 (dead end)", "ipopt", ["controller=casadi"], 10.0),
     ("zumo_bug2 (dead end)", "sqp_capped 3 it.",
-     ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"], 2.0),
+     ["controller=casadi_sqp_capped", "controller.solve.sqp_iterations=3"], 2.0),
 ]
 
 
@@ -151,7 +151,7 @@ def closed_loop(name: str, base: list[str], label: str, overrides: list[str]) ->
 
 
 def capped(name: str, label: str, overrides: list[str], cap_ms: float) -> dict[str, Any]:
-    res = run([*EXPERIMENTS[name], *overrides, f"controller.time_cap_ms={cap_ms}"])
+    res = run([*EXPERIMENTS[name], *overrides, f"controller.solve.time_cap_ms={cap_ms}"])
     s, steps = res.summary, record.controller_steps(res.steps)
     ms = steps["solve_time_s"].to_numpy(float) * 1e3
     later = steps.iloc[1:]  # the first call also builds the solver's memory

@@ -87,7 +87,7 @@ CASES = [
             "casadi": ["+experiment=zumo_bug2", "controller=casadi"],
             "casadi_sqp_capped (3 SQP steps)": [
                 "+experiment=zumo_bug2", "controller=casadi_sqp_capped",
-                "controller.sqp_iterations=3"],
+                "controller.solve.sqp_iterations=3"],
             "casadi_rti": ["+experiment=zumo_bug2", "controller=casadi_rti"],
             "casadi_sqp": ["+experiment=zumo_bug2", "controller=casadi_sqp"],
             "nn": ["+experiment=zumo_nn"],

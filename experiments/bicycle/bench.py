@@ -108,8 +108,8 @@ def interleaved(scenario: str, n_steps: int) -> dict[str, float]:
     plant, scen, fast = run.plant, run.scenario, run.controller
     # the same controller but the QP solved through CVXPY (its own copy of the plant)
     variants = {
-        "CLARABEL_direct": ["controller.solver=CLARABEL", "controller.solve_via=direct"],
-        "CLARABEL_problem": ["controller.solver=CLARABEL", "controller.solve_via=problem"],
+        "CLARABEL_direct": ["controller.solver=CLARABEL", "controller.solve.via=direct"],
+        "CLARABEL_problem": ["controller.solver=CLARABEL", "controller.solve.via=problem"],
         "OSQP": ["controller.solver=OSQP"],
     }
     others = {name: build_run(compose_cfg(overrides(scenario, "switched", 0.02, *extra)))

@@ -104,8 +104,8 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     args = ap.parse_args(argv[1:])
     runs = {
         "converged SL, exact Hessian (default)": build([]),
-        "converged SL, exact Hessian, via Problem.solve": build(["controller.solve_via=problem"]),
-        "converged SL, Gauss-Newton QP (cap 20)": build(["controller.hessian=gauss_newton"]),
+        "converged SL, exact Hessian, via Problem.solve": build(["controller.solve.via=problem"]),
+        "converged SL, Gauss-Newton QP (cap 20)": build(["controller.solve.hessian=gauss_newton"]),
         "one pass (sl=one_pass)": build(["controller.sl=one_pass"]),
         REF: rebuilt(),
         # the same OCP as a nonlinear program: CasADi's SQP (qrqp) to convergence, compiled

@@ -59,7 +59,7 @@ def car(rounds: int) -> pd.DataFrame:
         CAR_JIT: casadi_run("car_casadi"),
         CAR_C1: casadi_run("car_casadi", "controller.codegen=true"),
         CAR_C2: casadi_run(
-            "car_casadi", "controller.codegen=true", "controller.jit_flags=[-O2]"),
+            "car_casadi", "controller.codegen=true", "controller.build.jit_flags=[-O2]"),
     }
     return car_cvxpy_bench.compare(runs, rounds)
 

@@ -49,7 +49,7 @@ BACKENDS = {
         "IPOPT": ["+experiment=zumo_bug2", "controller=casadi"],
         "SQP capped at 3 it. (truncated)": ["+experiment=zumo_bug2",
                                             "controller=casadi_sqp_capped",
-                                            "controller.sqp_iterations=3"],
+                                            "controller.solve.sqp_iterations=3"],
         "SQP-RTI, one QP (truncated)": ["+experiment=zumo_bug2", "controller=casadi_rti"],
     },
 }
@@ -89,7 +89,8 @@ def main() -> None:
         for backend, base in BACKENDS[study].items():
             run(base)  # builds (and compiles) once, untimed
             for scale in (0, *SCALES):
-                sim = (["sim.latency=measured", f"sim.latency_scale={scale}"] if scale else [])
+                sim = (["sim.latency=measured", f"sim.timing.latency_scale={scale}"]
+                       if scale else [])
                 row = {"study": study, "backend": backend, "latency_scale": scale,
                        **run([*base, *sim])}
                 rows.append(row)

@@ -2,7 +2,7 @@
 
 Study C's 20 ms against 50 ms question (the scheduled controller on the turn, the study's
 33.8 ms per step: ``sim=embedded_stm32``) under ``hold``, ``plan`` and ``late_apply``, the
-one-sample delay and ``controller.delay_compensation``; the car and BUG2 with fixed
+one-sample delay and ``sim.timing.delay_compensation``; the car and BUG2 with fixed
 latencies with and without compensation; and whether ``sim=realistic`` repeats exactly.
 
     uv run python experiments/latency/run_policies.py
@@ -22,17 +22,17 @@ from mpclab.runner.single_run import build_run, compose
 
 TURN = ["+experiment=bicycle_scheduled", "scenario=turn"]
 STM32 = "sim=embedded_stm32"
-COMP = "controller.delay_compensation=true"
+COMP = "sim.timing.delay_compensation=true"
 #: study -> [(label, overrides)]
 CASES = {
     "Study C, 20 ms": [
         ("ideal", [*TURN, "controller.dt=0.02"]),
         ("33.8 ms, hold", [*TURN, "controller.dt=0.02", STM32]),
-        ("33.8 ms, plan", [*TURN, "controller.dt=0.02", STM32, "sim.deadline_policy=plan"]),
+        ("33.8 ms, plan", [*TURN, "controller.dt=0.02", STM32, "sim.timing.deadline_policy=plan"]),
         ("33.8 ms, late_apply", [*TURN, "controller.dt=0.02", STM32,
-                                 "sim.deadline_policy=late_apply"]),
+                                 "sim.timing.deadline_policy=late_apply"]),
         ("33.8 ms, late_apply, compensated", [*TURN, "controller.dt=0.02", STM32,
-                                              "sim.deadline_policy=late_apply", COMP]),
+                                              "sim.timing.deadline_policy=late_apply", COMP]),
     ],
     "Study C, 50 ms": [
         ("ideal", [*TURN, "controller.dt=0.05"]),

@@ -29,7 +29,7 @@ HERE = Path(__file__).resolve().parent
 
 LAYOUTS = ("zumo_long_wall", "zumo_l_wall", "zumo_cup", "zumo_narrow_gap", "zumo_wide_gap",
            "zumo_goal_near_wall")
-SQP_CAPPED3 = ["controller=casadi_sqp_capped", "controller.sqp_iterations=3"]
+SQP_CAPPED3 = ["controller=casadi_sqp_capped", "controller.solve.sqp_iterations=3"]
 #: the study's J4 (ours: C3 = 1500, L3 = 0.05)
 STUDY_J4 = ["objective.terms.J4.C3=8000", "objective.terms.J4.L3=0.1527"]
 

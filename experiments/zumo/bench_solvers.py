@@ -42,7 +42,7 @@ QPS = ("qpoases", "osqp", "qrqp", "hpipm", "daqp", "piqp", "proxqp")
 def fatrop_options() -> dict[str, Any]:
     """The fatrop options of ``controller=casadi_fatrop`` (conf/controller/casadi_fatrop.yaml)."""
     cfg = compose(["+experiment=zumo_bug2", "controller=casadi_fatrop"])
-    return OmegaConf.to_container(cfg.controller.solver_options)
+    return OmegaConf.to_container(cfg.controller.solve.options)
 
 
 def candidates() -> dict[str, dict[str, Any]]:
@@ -94,7 +94,7 @@ class Recorded:
 def record(experiment: str, overrides: list[str]) -> tuple[Any, list[Recorded], str]:
     """Run ``experiment`` with IPOPT to convergence; the steps as the controller saw them."""
     cfg = compose([f"+experiment={experiment}", "controller=casadi", "recorder=none",
-                   "controller.solver=ipopt", "controller.jit=false", *overrides])
+                   "controller.solver=ipopt", "controller.build.jit=false", *overrides])
     run = build_run(cfg)
     steps: list[Recorded] = []
     inner = run.controller.step

@@ -11,7 +11,7 @@ closed-loop run of the CasADi backend; at every state each controller makes one 
 order alternating, each warm-started from its own previous solution. The table gives the
 median and p95 of the per-step wall time and their ratio. A third controller, interleaved
 with the two, is set by ``--backend`` (default: ``controller=casadi_sqp_capped
-controller.sqp_iterations=3``, 3 SQP steps per sample on the single-shooting form of the
+controller.solve.sqp_iterations=3``, 3 SQP steps per sample on the single-shooting form of the
 same NLP, qpOASES): the same objective, bounds and horizon, but not solved to convergence.
 The first controller is the experiment's NLP on IPOPT (``controller=casadi``), whatever
 backend the experiment ships with.
@@ -90,7 +90,7 @@ def main() -> None:
     ap.add_argument("--scenario", default="zumo_wall")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--backend", nargs="*",
-                    default=["controller=casadi_sqp_capped", "controller.sqp_iterations=3"],
+                    default=["controller=casadi_sqp_capped", "controller.solve.sqp_iterations=3"],
                     help="overrides of the third controller (default: SQP capped at 3 steps)")
     ap.add_argument("--md", type=Path, help="also write the stamped table here")
     args = ap.parse_args()

@@ -3,7 +3,7 @@ a standalone folder for a board (:mod:`mpclab.codegen.board`).
 
 The overrides compose the config as for ``python -m mpclab`` (``+experiment=bicycle_scheduled
 scenario=turn``); the controller must be the switched scheduled one (``controller=scheduled``,
-``controller.mode=switched``, no hysteresis), built with ``controller.codegen=true``. The
+``controller.schedule.mode=switched``, no hysteresis), built with ``controller.codegen=true``. The
 example in ``main.c`` replays ``--steps`` states spread over a closed-loop run of the same
 config, and ``expected_output.txt`` holds what the desktop build of the same C printed for
 them. This command sits on the top floor: it builds a run from a config.

@@ -13,8 +13,10 @@ no experiment). Hydra's flags stay: ``--hydra-help``, ``--cfg job``, ``--info``.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import re
+import typing
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -66,7 +68,25 @@ def options(cls: type) -> list[tuple[str, str]]:
             found.append((line.split(":")[0].strip(), []))
         elif found and line.strip():
             found[-1][1].append(line.strip())
-    return [(name, _first_sentence(" ".join(words))) for name, words in found]
+    rows = []
+    for name, words in found:
+        group = option_group(cls, name)
+        if group is None:
+            rows.append((name, _first_sentence(" ".join(words))))
+        else:  # an option group: its fields, each as group.field
+            rows += [(f"{name}.{field}", meaning) for field, meaning in options(group)]
+    return rows
+
+
+def option_group(cls: type, name: str) -> type | None:
+    """The option group (:mod:`mpclab.core.options`) ``cls.__init__`` takes as ``name``,
+    else None."""
+    try:
+        hint = typing.get_type_hints(cls.__init__).get(name)
+    except (NameError, TypeError):
+        return None
+    kinds = typing.get_args(hint) or (hint,)
+    return next((k for k in kinds if isinstance(k, type) and dataclasses.is_dataclass(k)), None)
 
 
 def _first_sentence(text: str, width: int = 76) -> str:

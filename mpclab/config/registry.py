@@ -153,7 +153,7 @@ def component(
         cls.registered_name = name  # type: ignore[attr-defined]
         conf = schema or schema_from_init(cls, injected, hydra_keys or {})
         # free-form options (a solver's own, dict[str, Any]) take new keys without Hydra's +
-        free = tuple(f.name for f in dataclasses.fields(conf) if f.type == dict[str, Any])
+        free = free_keys(conf)
         register_schema(group, name, conf, cls, (*open_keys, *free) if schema is None
                         else open_keys)
         return cls
@@ -188,6 +188,64 @@ def schema_from_init(
     return schema
 
 
+def free_keys(conf: type, prefix: str = "") -> tuple[str, ...]:
+    """Dotted paths of the free-form options (``dict[str, Any]``) of schema ``conf``, its
+    option groups' included."""
+    found: list[str] = []
+    for f in dataclasses.fields(conf):
+        if f.type == dict[str, Any]:
+            found.append(prefix + f.name)
+        elif isinstance(f.type, type) and dataclasses.is_dataclass(f.type):
+            found += free_keys(f.type, f"{prefix}{f.name}.")
+    return tuple(found)
+
+
+_GROUP_SCHEMAS: dict[type, type] = {}
+
+
+def group_schema(cls: type) -> type:
+    """The schema of the option group ``cls`` (:mod:`mpclab.core.options`): a dataclass
+    ``<Group>Conf`` with one field per field of ``cls``, typed and defaulted as
+    :func:`schema_from_init` types a constructor's options."""
+    if cls in _GROUP_SCHEMAS:
+        return _GROUP_SCHEMAS[cls]
+    hints = typing.get_type_hints(cls)
+    fields = []
+    for f in dataclasses.fields(cls):
+        default: Any = f.default
+        if default is dataclasses.MISSING:
+            default = (inspect.Parameter.empty if f.default_factory is dataclasses.MISSING
+                       else f.default_factory())
+        typ = _conf_type(hints.get(f.name, Any))
+        fields.append((f.name, *_conf_field(typ, default)))
+    schema = dataclasses.make_dataclass(f"{cls.__name__}Conf", fields)
+    schema.__module__ = cls.__module__
+    if cls.__module__ in sys.modules:
+        setattr(sys.modules[cls.__module__], schema.__name__, schema)
+    _GROUP_SCHEMAS[cls] = schema
+    return schema
+
+
+def _group_default(schema: type, value: Any) -> Any:
+    """The schema instance of an option group's default ``value`` (a group instance): its
+    fields as the schema holds them (None for a mapping or a list: an empty one)."""
+    given = {}
+    for f in dataclasses.fields(schema):
+        v = getattr(value, f.name)
+        origin = typing.get_origin(f.type)
+        if v is None and origin in (dict, list):
+            v = origin()
+        given[f.name] = _plain(v)
+    return schema(**given)
+
+
+def _plain(value: Any) -> Any:
+    """A group field's default as the schema holds it (tuples as lists, paths as text)."""
+    if isinstance(value, Path):
+        return str(value)
+    return _copy(value)
+
+
 _MAPPINGS = (collections.abc.Mapping, collections.abc.MutableMapping, dict)
 _SEQUENCES = (collections.abc.Sequence, collections.abc.MutableSequence, list, tuple)
 _PLAIN = (int, float, str, bool)
@@ -198,6 +256,9 @@ def _conf_type(t: Any) -> Any:
     origin, args = typing.get_origin(t), typing.get_args(t)
     if origin in (Union, types.UnionType):
         kinds = [a for a in args if a is not type(None)]
+        groups = [a for a in kinds if isinstance(a, type) and dataclasses.is_dataclass(a)]
+        if groups:  # an option group, or a mapping of its fields
+            return group_schema(groups[0])
         enums = [a for a in kinds if isinstance(a, type) and issubclass(a, enum.Enum)]
         base = enums[0] if enums else (_conf_type(kinds[0]) if len(kinds) == 1 else Any)
         if type(None) in args and typing.get_origin(base) not in (dict, list):
@@ -209,6 +270,8 @@ def _conf_type(t: Any) -> Any:
         return list[_conf_type(args[0])] if args else list[Any]
     if t is Path:
         return str
+    if isinstance(t, type) and dataclasses.is_dataclass(t):
+        return group_schema(t)
     if t in _PLAIN or (isinstance(t, type) and issubclass(t, enum.Enum)):
         return t
     return Any
@@ -219,6 +282,10 @@ def _conf_field(typ: Any, default: Any) -> tuple[Any, Any]:
     container = typing.get_origin(typ) in (dict, list)
     if default is inspect.Parameter.empty:
         return typ, dataclasses.field(default=MISSING)
+    if isinstance(typ, type) and dataclasses.is_dataclass(typ):  # an option group
+        given = default
+        return typ, dataclasses.field(
+            default_factory=lambda: typ() if given is None else _group_default(typ, given))
     if container:
         empty = dict if typing.get_origin(typ) is dict else list
         value = empty() if default is None else empty(default)

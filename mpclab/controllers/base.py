@@ -52,8 +52,8 @@ class StepContext:
     latency_s
         When this step's input is expected to act, after the measurement [s].
     predict
-        The loop computes from the state predicted over ``latency_s`` (a one-sample delay),
-        whatever the controller's ``delay_compensation``.
+        Compute from the state predicted over ``latency_s`` (``sim.timing.delay_compensation``:
+        :meth:`Controller.step` does it for every backend).
     """
 
     goal: FloatArray
@@ -127,18 +127,12 @@ class Controller(ABC):
     #: summary; None for a backend without a control horizon
     blocking: Blocking | None = None
 
-    def __init__(
-        self, plant: Plant, horizon: int, dt: float, delay_compensation: bool = False,
-    ) -> None:
+    def __init__(self, plant: Plant, horizon: int, dt: float) -> None:
         if int(horizon) < self.min_horizon:
             raise ConfigError(f"controller.horizon must be >= {self.min_horizon}, got {horizon}")
-        if not isinstance(delay_compensation, bool):
-            raise ConfigError(f"controller.delay_compensation must be true or false, "
-                              f"got {delay_compensation!r}")
         self.plant = plant
         self.horizon = int(horizon)
         self.dt = number(dt, "controller.dt", above=0)
-        self.delay_compensation = delay_compensation
         self._plan: ControlStep | None = None
         self._received: FloatArray | None = None
 
@@ -154,14 +148,13 @@ class Controller(ABC):
     def step(self, t: float, x: npt.ArrayLike, ctx: StepContext) -> ControlStep:
         """Solve at time ``t`` from state ``x``; never raises for a failed solve.
 
-        With ``delay_compensation`` (or a loop that asks for it, ``ctx.predict``) and an
+        When the loop asks for it (``ctx.predict``: ``sim.timing.delay_compensation``) and an
         expected latency ``ctx.latency_s``, it solves from the state the plant's own step
         predicts at ``t + latency_s`` under the input in effect (``ctx.applied``), with the
         reference shifted by the same time: the input is computed for when it acts.
         """
         x = np.asarray(x, dtype=float)
-        if (self.delay_compensation or ctx.predict) and ctx.latency_s > 0 \
-                and ctx.applied is not None:
+        if ctx.predict and ctx.latency_s > 0 and ctx.applied is not None:
             x = self.plant.step(x, ctx.applied, ctx.latency_s)
             ctx = replace(ctx, target=shift_by(ctx.target, ctx.latency_s / self.dt))
             t = t + ctx.latency_s

@@ -12,16 +12,16 @@ progress argument: every leave point is closer to the goal than the hit point be
 Which terms each mode switches on is configuration, not code.
 
 The boundary followed is the obstacle that was hit: every detected point is remembered in
-the world frame, and points less than ``run_link`` apart (a gap the robot cannot pass) are
+the world frame, and points less than ``boundary.run_link`` apart (a gap the robot cannot pass) are
 one obstacle (:class:`~mpclab.supervisors.boundary.ObstacleMemory`); the obstacle of the
-blocking point is the one followed (:meth:`followed`). With ``path_speed > 0`` the
+blocking point is the one followed (:meth:`followed`). With ``boundary.path_speed > 0`` the
 supervisor follows the boundary itself: in ``wall_follow`` the controller's reference
 over the horizon (:meth:`target`) is the path along the followed obstacle at ``clearance``
 (:mod:`mpclab.supervisors.boundary`) sampled at ``path_speed``, for a tracking term.
 
 A way can be blocked where no detected point lies in the corridor toward the goal (two
 obstacles either side of it, closer together than the robot with its margin): with
-``stuck_window > 0``, a robot in ``go_to_goal`` that has come less than ``stuck_progress``
+``stuck.window > 0``, a robot in ``go_to_goal`` that has come less than ``stuck.progress``
 nearer the goal over that window, with an obstacle detected within ``block_range``, counts
 as having hit the obstacle nearest to it. A robot whose measured state meets the scenario's
 arrival rule is where it thinks the goal is: it leaves ``wall_follow``, and it is never
@@ -32,13 +32,16 @@ short of the true goal; the run then stalls there rather than following walls on
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from enum import StrEnum
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 
 from mpclab.config.registry import component
 from mpclab.core.errors import ConfigError, number, parse_choice
+from mpclab.core.options import group
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.supervisors.base import Arrival, FloatArray, Supervisor
@@ -53,6 +56,52 @@ class Bug2Mode(StrEnum):
 #: the study's modes (eqs. 9 and 10); experiments name theirs in conf/supervisor/bug2.yaml
 MODES: Mapping[str, Sequence[str]] = MappingProxyType(
     {"go_to_goal": ("J1", "J2", "J3", "J4"), "wall_follow": ("J3", "J4", "J5")})
+
+
+@dataclass(frozen=True)
+class BoundaryFollowing:
+    """How BUG2 follows the boundary it hit (``supervisor.boundary``).
+
+    Parameters
+    ----------
+    path_speed
+        > 0: in ``wall_follow``, the reference over the horizon is the path along the
+        followed boundary, sampled at this speed [m/s]; 0: the scenario's (a term follows
+        the wall).
+    clearance
+        The path's distance from the followed boundary's detected points [m].
+    least_clearance
+        In a pocket whose way out is narrower than twice ``clearance`` the path's distance
+        is lowered down to this [m] (:mod:`~mpclab.supervisors.boundary`).
+    side
+        ``right`` or ``left``: the side of the robot the followed boundary stays on.
+    run_link
+        Detected points nearer than this to each other belong to one obstacle [m]; None:
+        twice ``clearance`` (a gap the path along a boundary cannot pass).
+    """
+
+    path_speed: float = 0.0
+    clearance: float = 0.08
+    least_clearance: float = 0.07
+    side: Side | str = Side.right
+    run_link: float | None = None
+
+
+@dataclass(frozen=True)
+class StuckRule:
+    """When a robot going to the goal counts as stuck (``supervisor.stuck``; module
+    docstring).
+
+    Parameters
+    ----------
+    window
+        > 0: the window of the rule [s]; 0: off.
+    progress
+        Less progress toward the goal than this over ``window`` is stuck [m].
+    """
+
+    window: float = 0.0
+    progress: float = 0.02
 
 
 @component("supervisor", "bug2", injected=("plant", "objective"))
@@ -76,24 +125,11 @@ class Bug2(Supervisor):
     goal_sight_range
         Also leave off the m-line when the goal is nearer than this and the corridor to it
         is free of detected points [m] (at most the sensor's range); 0: the m-line only.
-    run_link
-        Detected points nearer than this to each other belong to one obstacle [m]; None:
-        twice ``clearance`` (a gap the path along a boundary cannot pass).
-    path_speed
-        > 0: in ``wall_follow``, the reference over the horizon is the path along the
-        followed boundary, sampled at this speed [m/s]; 0: the scenario's (a term follows
-        the wall).
-    clearance
-        The path's distance from the followed boundary's detected points [m].
-    least_clearance
-        In a pocket whose way out is narrower than twice ``clearance`` the path's distance
-        is lowered down to this [m] (:mod:`~mpclab.supervisors.boundary`).
-    side
-        ``right`` or ``left``: the side of the robot the followed boundary stays on.
-    stuck_window
-        > 0: the window of the stuck rule (see the module docstring) [s]; 0: off.
-    stuck_progress
-        Less progress toward the goal than this over ``stuck_window`` is stuck [m].
+    boundary
+        How the boundary that was hit is followed (:class:`BoundaryFollowing`:
+        ``path_speed``, ``clearance``, ``least_clearance``, ``side``, ``run_link``).
+    stuck
+        The stuck rule (:class:`StuckRule`: ``window``, ``progress``).
     objective
         Injected; every term a mode names must be one of its terms, and every one of its
         terms must be named by some mode (a term no mode names would be silently off).
@@ -108,13 +144,8 @@ class Bug2(Supervisor):
         mline_tolerance: float = 0.05,
         leave_margin: float = 0.05,
         goal_sight_range: float = 0.0,
-        run_link: float | None = None,
-        path_speed: float = 0.0,
-        clearance: float = 0.08,
-        least_clearance: float = 0.07,
-        side: Side | str = Side.right,
-        stuck_window: float = 0.0,
-        stuck_progress: float = 0.02,
+        boundary: BoundaryFollowing | Mapping[str, Any] = BoundaryFollowing(),
+        stuck: StuckRule | Mapping[str, Any] = StuckRule(),
         objective: Objective | None = None,
     ) -> None:
         given = dict(modes or MODES)
@@ -132,16 +163,19 @@ class Bug2(Supervisor):
         self.leave_margin = number(leave_margin, "supervisor.leave_margin")
         self.sight = number(goal_sight_range, "supervisor.goal_sight_range (0: off)",
                             at_least=0)
-        self.path_speed = number(path_speed, "supervisor.path_speed (0: off)", at_least=0)
-        self.clearance = number(clearance, "supervisor.clearance", above=0)
-        self.least_clearance = number(least_clearance, "supervisor.least_clearance",
+        b = group(BoundaryFollowing, boundary, "supervisor.boundary")
+        self.path_speed = number(b.path_speed, "supervisor.boundary.path_speed (0: off)",
+                                 at_least=0)
+        self.clearance = number(b.clearance, "supervisor.boundary.clearance", above=0)
+        self.least_clearance = number(b.least_clearance, "supervisor.boundary.least_clearance",
                                       above=0)
-        self.run_link = (2 * self.clearance if run_link is None
-                         else number(run_link, "supervisor.run_link", above=0))
-        self.side = parse_choice(Side, side, "supervisor.side")
-        self.stuck_window = number(stuck_window, "supervisor.stuck_window (0: off)",
+        self.run_link = (2 * self.clearance if b.run_link is None
+                         else number(b.run_link, "supervisor.boundary.run_link", above=0))
+        self.side = parse_choice(Side, b.side, "supervisor.boundary.side")
+        rule = group(StuckRule, stuck, "supervisor.stuck")
+        self.stuck_window = number(rule.window, "supervisor.stuck.window (0: off)",
                                    at_least=0)
-        self.stuck_progress = number(stuck_progress, "supervisor.stuck_progress", above=0)
+        self.stuck_progress = number(rule.progress, "supervisor.stuck.progress", above=0)
         self._ip = [plant.state_index(s) for s in plant.position]
         self._ith = plant.state_index(plant.heading) if plant.heading else None
         self.mode = Bug2Mode.go_to_goal
@@ -235,7 +269,7 @@ class Bug2(Supervisor):
         return ref
 
     def stuck(self, t: float, p: FloatArray, detections: FloatArray) -> bool:
-        """The stuck rule (module docstring): less than ``stuck_progress`` nearer the goal
+        """The stuck rule (module docstring): less than ``stuck.progress`` nearer the goal
         over the last ``stuck_window`` seconds in ``go_to_goal``, an obstacle detected
         within ``block_range``. Always False with ``stuck_window = 0``."""
         if self.stuck_window <= 0:

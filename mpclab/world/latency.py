@@ -1,4 +1,4 @@
-"""When a controller's input acts (``sim.latency``, ``sim.deadline_policy``): the choices and
+"""When a controller's input acts (``sim.latency``, ``sim.timing.deadline_policy``): the choices and
 the recorded latency profiles they draw from (the loop's timing itself is
 :class:`mpclab.world.sim_world.SimWorld`'s)."""
 
@@ -50,10 +50,10 @@ def parse_latency(value: Any) -> tuple[Latency, float]:
 
 
 def latency_profile_s(path: str | None) -> FloatArray:
-    """The latencies [s] of ``sim.latency_profile``: the ``latency_s`` column of a CSV or
+    """The latencies [s] of ``sim.timing.latency_profile``: the ``latency_s`` column of a CSV or
     Parquet file (NaN rows, as a step log's final one, dropped). A relative path is read
     from the working folder, else from the config folder (the shipped profiles)."""
-    key = "sim.latency_profile"
+    key = "sim.timing.latency_profile"
     if not path:
         raise ConfigError(f"{key}: sim.latency=recorded needs a file with a latency_s column "
                           f"(e.g. {key}=sim/profiles/zumo_bug2_fatrop.csv)")

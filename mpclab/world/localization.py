@@ -1,5 +1,5 @@
-"""Where the robot believes it is (``sim.localization``, ``sim.odometry``,
-``sim.localization_fix``).
+"""Where the robot believes it is (``sim.localization``, ``sim.localization.odometry``,
+``sim.localization.fix``).
 
 ``truth`` (the default): the controller and the supervisor see the true state (plus
 ``sim.noise``, if any). ``odometry``: they see a **dead-reckoning estimate**, started at the
@@ -12,7 +12,7 @@ car's acceleration and steering rate) it is the general form, dead reckoning. Wi
 parameters, no encoder error and no disturbance the estimate is the true state; with a
 wheel 5 % larger than the model's it drifts: the robot drives 5 % further than it believes.
 
-Encoder errors (``sim.odometry``), drawn per control period from the run's seed:
+Encoder errors (``sim.localization.odometry``), drawn per control period from the run's seed:
 
 * ``slip_std``: each input's measured value is multiplied by ``1 + N(0, slip_std^2)``
   (wheel slip, one draw per input per period);
@@ -22,7 +22,7 @@ Encoder errors (``sim.odometry``), drawn per control period from the run's seed:
   in steps of ``quantum``; each piece's measured input is the counted travel over the piece
   divided by its length (the count's error never exceeds one step, and does not grow).
 
-**Absolute fix** (``sim.localization_fix``): every ``period_s`` of simulated time (at the
+**Absolute fix** (``sim.localization.fix``): every ``period_s`` of simulated time (at the
 first controller call at or after each multiple of it) a sensor measures the true state's
 entries named in ``std`` (``position`` and ``heading`` stand for those of any plant; empty:
 both, exactly) with ``N(0, std^2)`` noise, and the estimate moves the fraction ``gain`` of
@@ -105,9 +105,10 @@ class Odometry:
                  input_std: Mapping[str, float] | None = None, slip_std: float = 0.0,
                  quantum: Mapping[str, float] | None = None) -> None:
         self.model, self.rng = model, rng
-        self.input_std = _by_input(model, input_std or {}, "sim.odometry.input_std", False)
-        self.slip_std = number(slip_std, "sim.odometry.slip_std", at_least=0)
-        self.quantum = _by_input(model, quantum or {}, "sim.odometry.quantum", True)
+        self.input_std = _by_input(model, input_std or {},
+                                   "sim.localization.odometry.input_std", False)
+        self.slip_std = number(slip_std, "sim.localization.odometry.slip_std", at_least=0)
+        self.quantum = _by_input(model, quantum or {}, "sim.localization.odometry.quantum", True)
         #: any encoder error at all (else the measured inputs are the applied ones)
         self.configured = bool(self.input_std.any() or self.slip_std > 0 or self.quantum.any())
         self.estimate = np.zeros(model.nx)
@@ -177,7 +178,7 @@ class Fix:
 
     def __init__(self, plant: Plant, rng: np.random.Generator, period_s: float | None = None,
                  std: Mapping[str, float] | None = None, gain: float = 1.0) -> None:
-        key = "sim.localization_fix"
+        key = "sim.localization.fix"
         self.rng = rng
         self.period_s = None if period_s is None else number(period_s, f"{key}.period_s",
                                                              above=0)

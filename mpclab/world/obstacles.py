@@ -39,7 +39,7 @@ def wall(start: Sequence[float], end: Sequence[float], spacing: float, radius: f
     return np.column_stack([centres, np.full(n, float(radius))])
 
 
-def layout(
+def obstacle_discs(
     discs: Sequence[Sequence[float]],
     walls: Sequence[Mapping[str, Any]],
     radius: float,
@@ -50,10 +50,10 @@ def layout(
     parts = [np.zeros((0, 3))]
     for i, d in enumerate(discs):
         if len(d) != 2:
-            raise ConfigError(f"scenario.discs[{i}] must be [x, y], got {list(d)}")
-        parts.append(np.array([[number(d[0], f"scenario.discs[{i}][0]"),
-                                number(d[1], f"scenario.discs[{i}][1]"), float(radius)]]))
+            raise ConfigError(f"scenario.layout.discs[{i}] must be [x, y], got {list(d)}")
+        parts.append(np.array([[number(d[0], f"scenario.layout.discs[{i}][0]"),
+                                number(d[1], f"scenario.layout.discs[{i}][1]"), float(radius)]]))
     for i, w in enumerate(walls):
-        check_keys(w, ("start", "end", "spacing"), where=f"scenario.walls[{i}]")
+        check_keys(w, ("start", "end", "spacing"), where=f"scenario.layout.walls[{i}]")
         parts.append(wall(w["start"], w["end"], float(w.get("spacing", 0.05)), radius))
     return np.concatenate(parts, axis=0)

@@ -68,7 +68,7 @@ def random_layout(
     """Discs ``(n, 3)`` of a random layout (see the module docstring and
     :class:`RandomLayoutConf`); with ``solvable``, one the robot disc can drive through from
     ``start`` to ``goal`` within ``extent`` together with the ``fixed`` discs."""
-    check_keys(conf, [f for f in RandomLayoutConf.__dataclass_fields__], "scenario.random")
+    check_keys(conf, [f for f in RandomLayoutConf.__dataclass_fields__], "scenario.layout.random")
     c = RandomLayoutConf(**dict(conf))
     fixed = np.zeros((0, 3)) if fixed is None else np.asarray(fixed, dtype=float)
     for _ in range(max(1, int(c.max_layouts))):
@@ -80,7 +80,7 @@ def random_layout(
                                        cell=float(c.cell)):
             return discs
     raise ConfigError(
-        f"scenario.random: no layout of {c.max_layouts} drawn places every part and lets "
+        f"scenario.layout.random: no layout of {c.max_layouts} drawn places every part and lets "
         f"the robot (radius {robot_radius:g} m, clearance {c.clearance:g} m) reach the goal; "
         "lower n_walls / n_discs / "
         "min_gap or widen the gaps"
@@ -96,7 +96,7 @@ def random_walls(
     c = RandomLayoutConf(**dict(conf))
     discs = _draw(rng, c, radius, spacing, start, goal)
     if discs is None:
-        raise ConfigError(f"scenario.random: a part found no place in {c.max_tries} draws; "
+        raise ConfigError(f"scenario.layout.random: a part found no place in {c.max_tries} draws; "
                           "enlarge region or lower keep_clear / goal_clear / min_gap")
     return discs
 
@@ -152,7 +152,7 @@ def _draw(
     if n_walls < c.n_walls:
         raise ConfigError(
             f"could not place {c.n_walls} random walls in {c.max_tries} draws; "
-            "enlarge scenario.random.region or lower keep_clear / goal_clear / min_gap"
+            "enlarge scenario.layout.random.region or lower keep_clear / goal_clear / min_gap"
         )
     placed = True
     if c.goal_wall > 0 and rng.uniform() < c.goal_wall:

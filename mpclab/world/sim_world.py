@@ -5,24 +5,26 @@ instant the state was measured, and the simulator integrates the controller's ow
 :class:`SimWorld` adds, each on its own key:
 
 * **latency** (``latency``: ``none``, ``measured``, a number of ms, ``one_sample`` or
-  ``recorded``; ``latency_scale``): the input computed from the state at ``t_k`` acts from
+  ``recorded``; ``timing.latency_scale``): the input computed from the state at ``t_k`` acts from
   ``t_k + tau``; the input applied before it holds until then, and the step is integrated
   in two pieces across the switch. ``one_sample`` is the fixed one-sample delay of embedded
   loops: the controller computes during ``[t_k, t_k+1)`` from the state predicted at
   ``t_k+1`` and its input acts from ``t_k+1``, however long the solve took. ``recorded``
-  draws each latency, seeded, from a recorded distribution (``latency_profile``: a CSV or
+  draws each latency, seeded, from a recorded distribution (``timing.latency_profile``: a CSV or
   Parquet file with a ``latency_s`` column, e.g. a run's ``steps.parquet``), so that a run
   repeats exactly; ``measured`` is the run's own solve time, which differs from run to run
   (the part of the call before its input, ``feedback_s``, for a controller that prepares
   its next solve after it: the real-time iteration); ``modelled`` is each call's time on the
   board the controller models (``Controller.board_time_model``: the scheduled controller's
   generated C on the F401RE, ``sim=embedded_m4``).
-  A solve whose ``tau`` exceeds the **deadline** (``deadline_ms``, default the control
-  period) is a deadline miss, and ``deadline_policy`` says what happens: ``hold`` (its input
-  never acts; the applied one holds), ``plan`` (its input never acts; the next input of the
-  last plan that met its deadline does) or ``late_apply`` (its input acts when it is ready,
-  and the board is busy until then: the next solve starts at the first sample after it, the
-  samples between are skipped).
+  A solve whose ``tau`` exceeds the **deadline** (``timing.deadline_ms``, default the
+  control period) is a deadline miss, and ``timing.deadline_policy`` says what happens:
+  ``hold`` (its input never acts; the applied one holds), ``plan`` (its input never acts;
+  the next input of the last plan that met its deadline does) or ``late_apply`` (its input
+  acts when it is ready, and the board is busy until then: the next solve starts at the
+  first sample after it, the samples between are skipped). With
+  ``timing.delay_compensation`` the controller computes from the state its model predicts
+  when the input will act (on by default under ``one_sample``).
 * **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
   any plant's, ``noise.range_std``): the controller
   and the supervisor see a noisy state; range readings are taken from the true pose, get
@@ -32,10 +34,11 @@ instant the state was measured, and the simulator integrates the controller's ow
 * **model mismatch** (``plant_params.<name>``, ``substeps``): the simulated plant has other
   parameters (and a finer integrator) than the one the controller predicts with; the same
   ``rhs``.
-* **localization** (``localization``: ``truth`` or ``odometry``; ``odometry``,
-  ``localization_fix``): the state the controller and the supervisor see is the true one or
-  a dead-reckoning estimate integrated with the model's parameters, optionally reset towards
-  an absolute fix (:mod:`mpclab.world.localization`); the noise above is added to it.
+* **localization** (``localization.source``: ``truth`` or ``odometry``;
+  ``localization.odometry``, ``localization.fix``): the state the controller and the
+  supervisor see is the true one or a dead-reckoning estimate integrated with the model's
+  parameters, optionally reset towards an absolute fix (:mod:`mpclab.world.localization`);
+  the noise above is added to it.
 * **actuators** (``actuator.time_constant_s``, ``actuator.rate_limit``): the plant sees the
   output of a first-order lag and/or a rate limit of the command, not the command itself
   (:mod:`mpclab.world.actuators`).
@@ -55,8 +58,9 @@ from typing import Any
 
 import numpy as np
 
-from mpclab.config.registry import component, schema_from_init
+from mpclab.config.registry import component, group_schema, schema_from_init
 from mpclab.core.errors import ConfigError, check_keys, number, parse_choice
+from mpclab.core.options import group
 from mpclab.plants.base import FloatArray, Plant
 from mpclab.world.actuators import Actuator
 from mpclab.world.latency import DeadlinePolicy, Latency, latency_profile_s, parse_latency
@@ -96,22 +100,54 @@ FixConf = _nested(Fix, "FixConf")
 ActuatorConf = _nested(Actuator, "ActuatorConf")
 
 
+@dataclass(frozen=True)
+class LoopTiming:
+    """When an input acts and what the controller computes from (``sim.timing``; the kind
+    of latency is ``sim.latency``).
+
+    Parameters
+    ----------
+    latency_scale
+        Factor on every latency (a slower target).
+    latency_profile
+        ``recorded``: a CSV or Parquet file with a ``latency_s`` column, read from the
+        working folder, else from the config folder.
+    deadline_ms
+        A solve later than this misses its deadline [ms]; None: the control period.
+    deadline_policy
+        What a miss does: ``hold``, ``plan`` or ``late_apply`` (module docstring).
+    delay_compensation
+        The controller computes from the state its plant model predicts when the input
+        will act (the expected latency, under the input in effect), the reference shifted
+        by the same time; None: only under ``one_sample`` (the embedded loop's prediction
+        of its next state).
+    """
+
+    latency_scale: float = 1.0
+    latency_profile: str | None = None
+    deadline_ms: float | None = None
+    deadline_policy: DeadlinePolicy | str = DeadlinePolicy.hold
+    delay_compensation: bool | None = None
+
+
+@dataclass
+class LocalizationConf:
+    source: str = "truth"          # truth | odometry
+    odometry: OdometryConf = field(default_factory=OdometryConf)  # type: ignore[valid-type]
+    fix: FixConf = field(default_factory=FixConf)  # type: ignore[valid-type]
+
+
 @dataclass
 class SimConf:
     _target_: str = "mpclab.world.sim_world.SimWorld"
     name: str = "nominal"
     latency: Any = "none"   # none | measured | a number of ms | one_sample | recorded | modelled
-    latency_scale: float = 1.0     # factor on the latency (a slower target)
-    latency_profile: str | None = None  # recorded: a .csv or .parquet with a latency_s column
-    deadline_ms: float | None = None  # default: the control period
-    deadline_policy: str = "hold"  # hold | plan | late_apply
+    timing: Any = field(default_factory=group_schema(LoopTiming))
     noise: NoiseConf = field(default_factory=NoiseConf)
     disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
     plant_params: dict[str, float] = field(default_factory=dict)
     substeps: int = 1              # RK4 sub-intervals of the simulated plant per step
-    localization: str = "truth"    # truth | odometry
-    odometry: OdometryConf = field(default_factory=OdometryConf)  # type: ignore[valid-type]
-    localization_fix: FixConf = field(default_factory=FixConf)  # type: ignore[valid-type]
+    localization: LocalizationConf = field(default_factory=LocalizationConf)
     actuator: ActuatorConf = field(default_factory=ActuatorConf)  # type: ignore[valid-type]
 
 
@@ -134,8 +170,9 @@ class Timing:
 
 
 @component("sim", "sim", SimConf, open_keys=(
-    "plant_params", "noise.state_std", "disturbance.state_std", "odometry.input_std",
-    "odometry.quantum", "localization_fix.std"))
+    "plant_params", "noise.state_std", "disturbance.state_std",
+    "localization.odometry.input_std", "localization.odometry.quantum",
+    "localization.fix.std"))
 class SimWorld:
     """The simulated world around the controller (see the module docstring).
 
@@ -147,6 +184,29 @@ class SimWorld:
         Injected: the run's seed.
     dt
         Injected: the control period [s].
+    name
+        The preset's name, in the run record (``sim``).
+    latency
+        ``none``, ``measured``, a number of ms, ``one_sample``, ``recorded`` or
+        ``modelled`` (module docstring).
+    timing
+        :class:`LoopTiming`: the latency's scale and profile, the deadline and its policy,
+        delay compensation.
+    noise
+        ``{state_std: {label: std}, range_std}``: measurement noise.
+    disturbance
+        ``{state_std: {label: std}}``: a random walk on the true state, per square-root
+        second.
+    plant_params
+        ``{name: value}``: the simulated plant's parameters where they differ from the
+        model's.
+    substeps
+        RK4 sub-intervals of the simulated plant per step.
+    localization
+        ``{source: truth | odometry, odometry: {...}, fix: {...}}``: the state the
+        controller sees (:mod:`mpclab.world.localization`).
+    actuator
+        ``{time_constant_s, rate_limit}`` (:mod:`mpclab.world.actuators`).
     """
 
     def __init__(
@@ -156,33 +216,37 @@ class SimWorld:
         dt: float = 0.1,
         name: str = "nominal",
         latency: Any = "none",
-        latency_scale: float = 1.0,
-        latency_profile: str | None = None,
-        deadline_ms: float | None = None,
-        deadline_policy: str = "hold",
+        timing: LoopTiming | Mapping[str, Any] = LoopTiming(),
         noise: Mapping[str, Any] | None = None,
         disturbance: Mapping[str, Any] | None = None,
         plant_params: Mapping[str, float] | None = None,
         substeps: int = 1,
-        localization: str = "truth",
-        odometry: Mapping[str, Any] | None = None,
-        localization_fix: Mapping[str, Any] | None = None,
+        localization: Mapping[str, Any] | None = None,
         actuator: Mapping[str, Any] | None = None,
     ) -> None:
         self.name = str(name)
         self.dt = float(dt)
         self.latency, self.fixed_latency_s = parse_latency(latency)
-        self.latency_scale = _positive(latency_scale, "sim.latency_scale")
-        self.latency_profile = latency_profile
-        self.profile_s = (latency_profile_s(latency_profile)
+        timing = group(LoopTiming, timing, "sim.timing")
+        self.latency_scale = _positive(timing.latency_scale, "sim.timing.latency_scale")
+        self.latency_profile = timing.latency_profile
+        self.profile_s = (latency_profile_s(timing.latency_profile)
                           if self.latency is Latency.recorded else None)
         period_ms = 1e3 * self.dt
-        self.deadline_s = (self.dt if deadline_ms is None
-                           else _positive(deadline_ms, "sim.deadline_ms") / 1e3)
+        self.deadline_s = (self.dt if timing.deadline_ms is None
+                           else _positive(timing.deadline_ms, "sim.timing.deadline_ms") / 1e3)
         if self.deadline_s > self.dt * (1 + 1e-9):
-            raise ConfigError(f"sim.deadline_ms must be at most the control period "
-                              f"({period_ms:g} ms), got {deadline_ms}")
-        self.policy = parse_choice(DeadlinePolicy, deadline_policy, "sim.deadline_policy")
+            raise ConfigError(f"sim.timing.deadline_ms must be at most the control period "
+                              f"({period_ms:g} ms), got {timing.deadline_ms}")
+        self.policy = parse_choice(DeadlinePolicy, timing.deadline_policy,
+                                   "sim.timing.deadline_policy")
+        compensation = timing.delay_compensation
+        if compensation is not None and not isinstance(compensation, bool):
+            raise ConfigError(f"sim.timing.delay_compensation must be true, false or null, "
+                              f"got {compensation!r}")
+        #: whether the controller computes from the state predicted over the latency
+        self.predicts = (self.latency is Latency.one_sample if compensation is None
+                         else compensation)
         noise = dict(noise or {})
         check_keys(noise, [f.name for f in dataclasses.fields(NoiseConf)], "sim.noise")
         self.state_std = state_stds(plant, noise.get("state_std") or {}, "sim.noise.state_std")
@@ -198,19 +262,22 @@ class SimWorld:
         self.model = plant
         self.plant = plant.variant(self.plant_params, self.substeps, where="sim.plant_params")
         self.rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_STREAM,)))
-        self.localization = parse_choice(Localization, localization, "sim.localization")
+        located = _group(localization, LocalizationConf, "sim.localization")
+        self.localization = parse_choice(Localization, located.get("source", "truth"),
+                                         "sim.localization.source")
         odometry_rng = np.random.default_rng(
             np.random.SeedSequence(int(seed), spawn_key=(_ODOMETRY_STREAM,)))
-        self.odometry = Odometry(plant, odometry_rng,
-                                 **_group(odometry, OdometryConf, "sim.odometry"))
-        self.fix = Fix(plant, odometry_rng,
-                       **_group(localization_fix, FixConf, "sim.localization_fix"))
+        self.odometry = Odometry(plant, odometry_rng, **_group(
+            located.get("odometry"), OdometryConf, "sim.localization.odometry"))
+        self.fix = Fix(plant, odometry_rng, **_group(
+            located.get("fix"), FixConf, "sim.localization.fix"))
         self.dead_reckoning = self.localization is Localization.odometry
         if not self.dead_reckoning and (self.odometry.configured or self.fix.configured):
-            what = (f"sim.odometry ({self.odometry.describe()})" if self.odometry.configured
-                    else f"sim.localization_fix.period_s={self.fix.period_s:g}")
-            raise ConfigError(f"{what}: acts only with sim.localization=odometry, got "
-                              f"sim.localization={self.localization.value}")
+            what = (f"sim.localization.odometry ({self.odometry.describe()})"
+                    if self.odometry.configured
+                    else f"sim.localization.fix.period_s={self.fix.period_s:g}")
+            raise ConfigError(f"{what}: acts only with sim.localization.source=odometry, got "
+                              f"sim.localization.source={self.localization.value}")
         self.actuator = Actuator(**_group(actuator, ActuatorConf, "sim.actuator"))
         #: what the world adds to the loop, decided once: state noise, input latency, a
         #: state the controller sees other than the true one (noise or odometry), actuators
@@ -258,12 +325,6 @@ class SimWorld:
             return ranges
         noisy = ranges + self.range_std * self.rng.standard_normal(ranges.shape)
         return np.where(np.isfinite(ranges), np.maximum(noisy, 0.0), ranges)
-
-    @property
-    def predicts(self) -> bool:
-        """Whether the controller computes from the state predicted over the latency
-        (``one_sample``: the state at the next sample)."""
-        return self.latency is Latency.one_sample
 
     def expected_latency_s(self) -> float:
         """The latency the coming solve's input is expected to act after: the fixed one,
@@ -366,6 +427,7 @@ class SimWorld:
             "sim_deadline_policy": self.policy.value,
             "sim_latency_scale": self.latency_scale,
             "sim_latency_profile": self.latency_profile if self.profile_s is not None else None,
+            "sim_delay_compensation": self.predicts,
             "sim_plant_params": dict(self.plant_params),
             "sim_localization": self.localization.value,
             "sim_odometry": self.odometry.describe() if self.dead_reckoning else None,

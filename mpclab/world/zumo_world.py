@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
 from mpclab.config.registry import component
-from mpclab.core.errors import ConfigError, number
+from mpclab.core.errors import ConfigError, check_keys, number
 from mpclab.plants.base import Plant
-from mpclab.world.obstacles import WallConf, layout
+from mpclab.world.obstacles import WallConf, obstacle_discs
 from mpclab.world.random_layout import RandomLayoutConf, random_layout
 from mpclab.world.scenario import FloatArray, Scenario, ScenarioConf
 from mpclab.world.sensor import RangeSensor, SensorConf
@@ -29,18 +29,32 @@ class StallConf:
 
 
 @dataclass
-class ObstacleScenarioConf(ScenarioConf):
-    _target_: str = "mpclab.world.zumo_world.ObstacleScenario"
+class LayoutConf:
+    """Where the obstacles are (``scenario.layout``)."""
+
     obstacle_radius: float = 0.05
     discs: list[list[float]] = field(default_factory=list)
     walls: list[WallConf] = field(default_factory=list)
     random: RandomLayoutConf = field(default_factory=RandomLayoutConf)
+    extent: list[float] = field(default_factory=lambda: [-0.1, 1.3, -0.1, 1.3])
+
+
+@dataclass
+class RandomStartConf:
+    """A start drawn from the run's seed (``scenario.random_start``)."""
+
+    region: dict[str, list[float]] = field(default_factory=dict)
+    clearance: float = 0.0
+
+
+@dataclass
+class ObstacleScenarioConf(ScenarioConf):
+    _target_: str = "mpclab.world.zumo_world.ObstacleScenario"
+    layout: LayoutConf = field(default_factory=LayoutConf)
     robot_radius: float = 0.05
     sensor: SensorConf = field(default_factory=SensorConf)
     stall: StallConf = field(default_factory=StallConf)
-    extent: list[float] = field(default_factory=lambda: [-0.1, 1.3, -0.1, 1.3])
-    start_region: dict[str, list[float]] = field(default_factory=dict)
-    start_clearance: float = 0.0
+    random_start: RandomStartConf = field(default_factory=RandomStartConf)
 
 
 def _draws_anything(random: Mapping[str, Any]) -> bool:
@@ -59,29 +73,23 @@ class ObstacleScenario(Scenario):
         Injected; its ``position`` and ``heading`` labels locate the robot.
     name, start, goal, arrival, t_max
         As :class:`~mpclab.world.scenario.Scenario`.
-    obstacle_radius
-        Radius of every obstacle disc [m].
-    discs
-        Single discs ``[[x, y], ...]``.
-    walls
-        Rows of discs ``[{start: [x, y], end: [x, y], spacing: s}, ...]``.
-    random
-        Random walls and discs added from ``rng``, redrawn until solvable (see
-        :class:`~mpclab.world.random_layout.RandomLayoutConf`).
+    layout
+        Where the obstacles are (:class:`LayoutConf`): ``obstacle_radius`` (of every disc,
+        [m]), ``discs`` (single discs ``[[x, y], ...]``), ``walls`` (rows of discs
+        ``[{start: [x, y], end: [x, y], spacing: s}, ...]``), ``random`` (random walls and
+        discs added from ``rng``, redrawn until solvable:
+        :class:`~mpclab.world.random_layout.RandomLayoutConf`) and ``extent``
+        (``[x0, x1, y0, y1]``, the field drawn in figures and random layouts, [m]).
     robot_radius
         The robot is a disc of this radius; overlapping an obstacle is a collision [m].
     sensor
         ``{n_rays, max_range, offset_deg}`` of the range sensor.
     stall
         ``{window_s, min_progress_m, max_displacement_m}`` (see :class:`StallConf`).
-    extent
-        ``[x0, x1, y0, y1]`` drawn in figures [m].
-    start_region
-        ``{state label: [low, high]}``: when given, those start values are drawn uniformly
-        from ``rng`` (the run's seed), redrawn until the robot is at least
-        ``start_clearance`` from every obstacle and not already at the goal.
-    start_clearance
-        Clearance a random start keeps from the obstacles [m].
+    random_start
+        ``{region: {state label: [low, high]}, clearance}``: when ``region`` is given, those
+        start values are drawn uniformly from ``rng`` (the run's seed), redrawn until the
+        robot is at least ``clearance`` from every obstacle and not already at the goal.
     rng
         Injected random generator (from the run's ``seed``), used by ``random``.
     """
@@ -94,16 +102,11 @@ class ObstacleScenario(Scenario):
         goal: Mapping[str, float],
         arrival: Mapping[str, Any],
         t_max: float = 30.0,
-        obstacle_radius: float = 0.05,
-        discs: Sequence[Sequence[float]] = (),
-        walls: Sequence[Mapping[str, Any]] = (),
-        random: Mapping[str, Any] | None = None,
+        layout: Mapping[str, Any] | None = None,
         robot_radius: float = 0.05,
         sensor: Mapping[str, Any] | None = None,
         stall: Mapping[str, Any] | None = None,
-        extent: Sequence[float] = (-0.1, 1.3, -0.1, 1.3),
-        start_region: Mapping[str, Sequence[float]] | None = None,
-        start_clearance: float = 0.0,
+        random_start: Mapping[str, Any] | None = None,
         rng: np.random.Generator | None = None,
     ) -> None:
         super().__init__(plant, name, start, goal, arrival, t_max)
@@ -112,10 +115,15 @@ class ObstacleScenario(Scenario):
         self._ip = [plant.state_index(s) for s in plant.position]
         self._ih = plant.state_index(plant.heading)
         self.robot_radius = number(robot_radius, "scenario.robot_radius", at_least=0)
-        number(obstacle_radius, "scenario.obstacle_radius", above=0)
+        where = dict(layout or {})
+        check_keys(where, [f.name for f in fields(LayoutConf)], "scenario.layout")
+        obstacle_radius = where.get("obstacle_radius", LayoutConf.obstacle_radius)
+        number(obstacle_radius, "scenario.layout.obstacle_radius", above=0)
+        walls = where.get("walls") or ()
         spacing = min((float(w.get("spacing", 0.05)) for w in walls), default=0.05)
-        obs = layout(discs, walls, obstacle_radius)
-        self.extent = [float(v) for v in extent]
+        obs = obstacle_discs(where.get("discs") or (), walls, obstacle_radius)
+        self.extent = [float(v) for v in where.get("extent", LayoutConf().extent)]
+        random = where.get("random")
         if random is not None and _draws_anything(random):
             if rng is None:
                 raise ConfigError(f"scenario {name!r}: random obstacles need the run's rng")
@@ -133,10 +141,13 @@ class ObstacleScenario(Scenario):
             raise ConfigError(
                 f"scenario.stall.window_s must be > 0, got {self.stall_rule.window_s}"
             )
-        if start_region:
+        start = dict(random_start or {})
+        check_keys(start, [f.name for f in fields(RandomStartConf)], "scenario.random_start")
+        if start.get("region"):
             if rng is None:
                 raise ConfigError(f"scenario {name!r}: a random start needs the run's rng")
-            self.x0 = self._random_start(dict(start_region), float(start_clearance), rng)
+            self.x0 = self._random_start(dict(start["region"]),
+                                         float(start.get("clearance", 0.0)), rng)
         for what, x in (("start", self.x0), ("goal", self.goal)):
             self._check_clear(what, x)
 
@@ -162,7 +173,7 @@ class ObstacleScenario(Scenario):
             try:
                 idx.append(self.plant.state_index(label))
             except ValueError as exc:
-                raise ConfigError(f"scenario.start_region: {exc}") from None
+                raise ConfigError(f"scenario.random_start.region: {exc}") from None
             lo.append(float(a))
             hi.append(float(b))
         for _ in range(10_000):

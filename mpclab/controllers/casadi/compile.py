@@ -123,6 +123,6 @@ def compiled_nlp(
         return compile_indexed(problem_key(nlp, plugin, opts), source, "nlp", flags,
                                extra_key=(ca.__version__,))
     except CompileError as exc:
-        warnings.warn(f"controller.jit: {exc}; the NLP functions run uncompiled",
+        warnings.warn(f"controller.build.jit: {exc}; the NLP functions run uncompiled",
                       RuntimeWarning, stacklevel=2)
         return None

@@ -18,7 +18,7 @@ Diehl's real-time iteration (RTI) takes one SQP step per sample, split at the me
   the rollout from it). CasADi's ``conic`` factors its matrices inside each call (none of its
   plugins takes a factorization made beforehand), so the preparation ends at the QP's data.
 * **feedback** (:meth:`RealTimeIteration.feedback`, after the measurement): ``q`` embedded
-  (two matrix-vector products), the one QP solved (``conic`` with ``controller.qp_solver``),
+  (two matrix-vector products), the one QP solved (``conic`` with ``controller.solve.qp_solver``),
   ``w + d`` and the QP's multipliers the new iterate.
 
 Every other parameter (goal, reference, detected points, constraint data) is the one the

@@ -2,7 +2,7 @@
 
 ``read_status`` maps any ``nlpsol``'s stats (or a solver buffer's) to :class:`SolveStatus`;
 ``nlpsol_options`` gives the plugin and its options for ``controller.solver`` (and
-``controller.qp_solver`` under SQP, :func:`qp_options`; the real-time iteration,
+``controller.solve.qp_solver`` under SQP, :func:`qp_options`; the real-time iteration,
 ``sqp_rti``, solves its QPs itself: :mod:`mpclab.controllers.casadi.rti`).
 """
 
@@ -30,7 +30,7 @@ class CasadiSolver(StrEnum):
     sqp_capped = "sqp_capped"
 
 
-#: the solvers whose solve ``controller.time_cap_ms`` can stop at a wall-clock deadline
+#: the solvers whose solve ``controller.solve.time_cap_ms`` can stop at a wall-clock deadline
 #: (IPOPT's ``max_wall_time``; sqpmethod through an iteration callback)
 TIME_CAPPED = ("ipopt", "sqp", "sqp_capped")
 
@@ -108,21 +108,22 @@ def checked_choices(
     :class:`ConfigError` naming the key, the value and what is valid); the time cap [ms]
     as a number (None: none)."""
     if solver is CasadiSolver.fatrop and shooting is not Shooting.multiple:
-        raise ConfigError("controller.solver=fatrop needs controller.shooting=multiple "
+        raise ConfigError("controller.solver=fatrop needs controller.build.shooting=multiple "
                           f"(got {shooting.value}): it exploits the stage structure")
     if (solver not in (CasadiSolver.ipopt, CasadiSolver.fatrop)
             and qp_solver is CasadiQpSolver.hpipm and shooting is Shooting.single):
-        raise ConfigError("controller.qp_solver=hpipm needs controller.shooting=multiple "
-                          "(on the single-shooting QP it crashes the process)")
+        raise ConfigError("controller.solve.qp_solver=hpipm needs "
+                          "controller.build.shooting=multiple (on the single-shooting QP it "
+                          "crashes the process)")
     rti = solver is CasadiSolver.sqp_rti
     if rti and int(sqp_iterations) != 1:
         raise ConfigError(
-            f"controller.sqp_iterations={sqp_iterations} applies to "
+            f"controller.solve.sqp_iterations={sqp_iterations} applies to "
             "controller.solver=sqp_capped (sqpmethod stopped after that many SQP steps); "
             "solver=sqp_rti takes one QP per sample: for the capped SQP use "
-            f"controller=casadi_sqp_capped controller.sqp_iterations={sqp_iterations}")
+            f"controller=casadi_sqp_capped controller.solve.sqp_iterations={sqp_iterations}")
     if rti and jit:
-        raise ConfigError("controller.jit=true is not available with controller.solver="
+        raise ConfigError("controller.build.jit=true is not available with controller.solver="
                           "sqp_rti (its linearization and QP run uncompiled); valid: "
                           "jit=false, or a solver that compiles: ipopt, fatrop, sqp, "
                           "sqp_capped")
@@ -132,14 +133,14 @@ def checked_choices(
                           "mpclab compiles and reads a status from")
     if time_cap_ms is None:
         return None
-    cap = number(time_cap_ms, "controller.time_cap_ms", above=0)
+    cap = number(time_cap_ms, "controller.solve.time_cap_ms", above=0)
     if solver.value not in TIME_CAPPED or codegen:
         why = ("generated C cannot stop at a deadline" if codegen else {
-            "fatrop": "fatrop has no time limit (cap its iterations: controller.max_iter)",
+            "fatrop": "fatrop has no time limit (cap its iterations: controller.solve.max_iter)",
             "sqp_rti": "it solves one QP per sample",
         }[solver.value])
         raise ConfigError(
-            f"controller.time_cap_ms={time_cap_ms} needs controller.solver one of "
+            f"controller.solve.time_cap_ms={time_cap_ms} needs controller.solver one of "
             f"{', '.join(TIME_CAPPED)}, without controller.codegen (got "
             f"solver={solver.value}{', codegen=true' if codegen else ''}: {why})")
     return cap

@@ -69,9 +69,6 @@ class UnoMPC(Controller):
         guesses are the previous plan shifted by one step.
     terminal_constraint
         ``{state label: value}`` imposed on the last predicted state.
-    delay_compensation
-        Solve from the state predicted over the loop's expected latency with the input in
-        effect, the reference shifted by the same time (``Controller.step``).
     """
 
     #: the NLP of the plant's own model, solved to Uno's tolerance
@@ -83,9 +80,8 @@ class UnoMPC(Controller):
         preset: UnoPreset | str = UnoPreset.filtersqp, max_iter: int = 100, tol: float = 1e-6,
         initial_input: Mapping[str, float] | None = None,
         terminal_constraint: Mapping[str, float] | None = None,
-        delay_compensation: bool = False,
     ) -> None:
-        super().__init__(plant, horizon, dt, delay_compensation)
+        super().__init__(plant, horizon, dt)
         self.blocking = Blocking.of(control_horizon, self.horizon)
         self.preset = parse_choice(UnoPreset, preset, "controller.preset")
         if int(max_iter) < 1:

@@ -98,7 +98,7 @@ def direct_solver(
     solver: str,
     options: Mapping[str, Any] | None,
     via: SolveVia | str,
-    key: str = "controller.solve_via",
+    key: str = "controller.solve.via",
 ) -> DirectClarabel | None:
     """The :class:`DirectClarabel` for ``problem``, or None where ``Problem.solve`` is used.
 
@@ -155,7 +155,7 @@ class CompiledQP:
         options: Mapping[str, Any] | None = None,
         warm_start: bool = True,
         via: SolveVia | str = SolveVia.auto,
-        key: str = "controller.solve_via",
+        key: str = "controller.solve.via",
     ) -> None:
         self.problem, self.variables = problem, list(variables)
         self.solver, self.options = str(solver), dict(options or {})

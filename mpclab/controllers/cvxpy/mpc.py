@@ -4,7 +4,7 @@ Per step only parameter values change: the initial state, the LTV model ``(A_k, 
 the input bounds and the target. The problem is compiled once (``Problem.is_dpp()`` is
 checked at construction), so a solve skips canonicalization. With Clarabel, each solve by
 default goes straight from the compiled parameter-to-data map to a persistent Clarabel solver
-(:mod:`mpclab.controllers.cvxpy.direct`); ``solve_via: problem`` uses ``Problem.solve``.
+(:mod:`mpclab.controllers.cvxpy.direct`); ``solve.via: problem`` uses ``Problem.solve``.
 
 ``sl: converge`` (default) iterates the linearization to convergence with a trust region
 (:mod:`mpclab.controllers.cvxpy.successive_linearization`); the trust region and the input bounds
@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
@@ -54,6 +55,7 @@ from mpclab.controllers.cvxpy.successive_linearization import (
 )
 from mpclab.core.errors import ConfigError, parse_choice
 from mpclab.core.lazy_import import lazy_import
+from mpclab.core.options import group
 from mpclab.core.status import Problem
 from mpclab.objectives.base import Objective, TermContext
 from mpclab.plants.base import Plant
@@ -84,6 +86,46 @@ class Linearization(StrEnum):
     rollout = "rollout"
 
 
+@dataclass(frozen=True)
+class CvxpySolve:
+    """How each step's QPs are iterated and solved (``controller.solve``).
+
+    Parameters
+    ----------
+    tol
+        ``converge``: stop when a step inside the trust region is at most ``tol`` (inputs in
+        half their ranges, max norm) or predicts a relative cost decrease of at most ``tol``.
+    max_iterations
+        ``converge``: QPs per step at most; a step stopped here is ``truncated``.
+    trust_radius
+        ``converge``: the trust region at the start of each step, in half input ranges.
+    hessian
+        ``converge``: the QP's objective, ``exact`` (a quadratic model of the rollout's true
+        cost in the inputs) or ``gauss_newton`` (the terms' CVXPY form on the linearized
+        states, as ``one_pass``).
+    linearize_about
+        ``one_pass``: ``shifted_plan`` or ``rollout`` (``converge`` always linearizes about
+        the rollout, whose true cost it needs).
+    warm_start
+        Passed to the solver (OSQP reuses its factorization and previous solution).
+    options
+        Extra keyword options for the solver (Clarabel settings by name, ``max_iter``, ...).
+    via
+        ``auto`` (default: ``direct`` with Clarabel, else ``problem``), ``direct`` (the
+        compiled data straight into a persistent Clarabel solver) or ``problem``
+        (``Problem.solve`` every step). Both give the same solution.
+    """
+
+    tol: float = 1e-6
+    max_iterations: int = 20
+    trust_radius: float = 0.5
+    hessian: Hessian | str = Hessian.exact
+    linearize_about: Linearization | str = Linearization.shifted_plan
+    warm_start: bool = True
+    options: Mapping[str, Any] | None = None
+    via: SolveVia | str = SolveVia.auto
+
+
 @component("controller", "cvxpy", injected=("plant", "objective"))
 class CvxpyMPC(Controller):
     """Successive-linearization MPC solved as a convex QP with CVXPY.
@@ -102,39 +144,18 @@ class CvxpyMPC(Controller):
         the moves ``V (nu, M)``; the inputs ``U = V S`` (``S`` the blocking, constant).
     solver
         ``CLARABEL`` (default) or ``OSQP``.
-    warm_start
-        Passed to the solver (OSQP reuses its factorization and previous solution).
     sl
-        ``converge`` (iterate to ``tol`` or ``max_iterations``) or ``one_pass``.
-    tol
-        ``converge``: stop when a step inside the trust region is at most ``tol`` (inputs in
-        half their ranges, max norm) or predicts a relative cost decrease of at most ``tol``.
-    max_iterations
-        ``converge``: QPs per step at most; a step stopped here is ``truncated``.
-    trust_radius
-        ``converge``: the trust region at the start of each step, in half input ranges.
-    hessian
-        ``converge``: the QP's objective, ``exact`` (a quadratic model of the rollout's true
-        cost in the inputs) or ``gauss_newton`` (the terms' CVXPY form on the linearized
-        states, as ``one_pass``).
+        ``converge`` (iterate to ``solve.tol`` or ``solve.max_iterations``) or ``one_pass``.
+    solve
+        How each step's QPs are iterated and solved (:class:`CvxpySolve`: ``tol``,
+        ``max_iterations``, ``trust_radius``, ``hessian``, ``linearize_about``,
+        ``warm_start``, ``options``, ``via``).
     initial_input
         ``{input label: value}`` held over the horizon as the first linearization point
         (others 0). The car at rest with zero steering angle has no first-order steering
         effect; a forward acceleration gives it one.
-    linearize_about
-        ``one_pass``: ``shifted_plan`` or ``rollout`` (``converge`` always linearizes about
-        the rollout, whose true cost it needs).
     terminal_constraint
         ``{state label: value}`` imposed on the last predicted state.
-    solver_options
-        Extra keyword options for the solver (Clarabel settings by name, ``max_iter``, ...).
-    solve_via
-        ``auto`` (default: ``direct`` with Clarabel, else ``problem``), ``direct`` (the
-        compiled data straight into a persistent Clarabel solver) or ``problem``
-        (``Problem.solve`` every step). Both give the same solution.
-    delay_compensation
-        Solve from the state predicted over the loop's expected latency with the input in
-        effect, the reference shifted by the same time (``Controller.step``).
     max_detections
         Detected points the QP has room for (with constraints); more are cut to the nearest.
     """
@@ -147,41 +168,34 @@ class CvxpyMPC(Controller):
         dt: float = 0.1,
         control_horizon: ControlHorizon = None,
         solver: CvxpySolver | str = CvxpySolver.CLARABEL,
-        warm_start: bool = True,
         sl: SlMode | str = SlMode.converge,
-        tol: float = 1e-6,
-        max_iterations: int = 20,
-        trust_radius: float = 0.5,
-        hessian: Hessian | str = Hessian.exact,
+        solve: CvxpySolve | Mapping[str, Any] = CvxpySolve(),
         initial_input: Mapping[str, float] | None = None,
-        linearize_about: Linearization | str = Linearization.shifted_plan,
         terminal_constraint: Mapping[str, float] | None = None,
-        solver_options: Mapping[str, Any] | None = None,
-        solve_via: SolveVia | str = SolveVia.auto,
-        delay_compensation: bool = False,
         max_detections: int = 20,
     ) -> None:
-        super().__init__(plant, horizon, dt, delay_compensation)
+        super().__init__(plant, horizon, dt)
         self.blocking = Blocking.of(control_horizon, self.horizon)
         self.solver = parse_choice(CvxpySolver, solver, "controller.solver").value
-        self.warm_start = bool(warm_start)
+        solve = group(CvxpySolve, solve, "controller.solve")
+        self.warm_start = bool(solve.warm_start)
         self.sl = parse_choice(SlMode, sl, "controller.sl")
-        if int(max_iterations) < 1:
-            raise ConfigError(f"controller.max_iterations must be >= 1, got {max_iterations}")
-        if not float(tol) > 0:
-            raise ConfigError(f"controller.tol must be > 0, got {tol}")
-        if not 0 < float(trust_radius) <= MAX_RADIUS:
-            raise ConfigError(
-                f"controller.trust_radius must be in (0, {MAX_RADIUS:g}], got {trust_radius}"
-            )
-        self.max_iterations, self.tol = int(max_iterations), float(tol)
-        self.trust_radius = float(trust_radius)
-        self.hessian = parse_choice(Hessian, hessian, "controller.hessian")
+        if int(solve.max_iterations) < 1:
+            raise ConfigError(f"controller.solve.max_iterations must be >= 1, "
+                              f"got {solve.max_iterations}")
+        if not float(solve.tol) > 0:
+            raise ConfigError(f"controller.solve.tol must be > 0, got {solve.tol}")
+        if not 0 < float(solve.trust_radius) <= MAX_RADIUS:
+            raise ConfigError(f"controller.solve.trust_radius must be in "
+                              f"(0, {MAX_RADIUS:g}], got {solve.trust_radius}")
+        self.max_iterations, self.tol = int(solve.max_iterations), float(solve.tol)
+        self.trust_radius = float(solve.trust_radius)
+        self.hessian = parse_choice(Hessian, solve.hessian, "controller.solve.hessian")
         #: the QP's objective is the terms' CVXPY form (else the exact quadratic model)
         self._terms_qp = self.sl is SlMode.one_pass or self.hessian is Hessian.gauss_newton
-        self.linearize_about = parse_choice(Linearization, linearize_about,
-                                            "controller.linearize_about")
-        self.solver_options = dict(solver_options or {})
+        self.linearize_about = parse_choice(Linearization, solve.linearize_about,
+                                            "controller.solve.linearize_about")
+        self.solver_options = dict(solve.options or {})
         self._u_guess = input_vector(plant, initial_input, "controller.initial_input")
         self._u_lo, self._u_hi = np.maximum(plant.u_lb, -_FREE), np.minimum(plant.u_ub, _FREE)
         self.objective = objective
@@ -198,7 +212,7 @@ class CvxpyMPC(Controller):
             self._check_compile_size()
         self._build()
         self.qp = CompiledQP(self.problem, [self.X, self.V], self.solver, self.solver_options,
-                             self.warm_start, solve_via)
+                             self.warm_start, solve.via)
         self.iteration = None if self.sl is SlMode.one_pass else TrustRegionSL(
             plant, objective, self.blocking, self.dt, self._terminal, self.hessian, self.tol,
             self.max_iterations, self.trust_radius, self._u_lo, self._u_hi,

@@ -39,9 +39,6 @@ class NNController(Controller):
     scenario
         Injected when built from config: its range sensor must give the rays the net was
         trained on.
-    delay_compensation
-        Solve from the state predicted over the loop's expected latency with the input in
-        effect, the reference shifted by the same time (``Controller.step``).
     """
 
     min_horizon = 0
@@ -51,9 +48,8 @@ class NNController(Controller):
 
     def __init__(
         self, plant: Plant, weights: str, dt: float = 0.2, scenario: Scenario | None = None,
-        delay_compensation: bool = False,
     ) -> None:
-        super().__init__(plant, 0, dt, delay_compensation)
+        super().__init__(plant, 0, dt)
         try:
             self.mlp = MLP.load(config_file(weights) or weights)
         except (ValueError, FileNotFoundError) as exc:

@@ -80,7 +80,8 @@ class ScheduledSIL:
         if ctrl.mode != "switched" or any(ctrl.grid.hysteresis):  # StrEnum: equal to values
             margins = dict(zip(ctrl.grid.labels, ctrl.grid.hysteresis, strict=True))
             raise ConfigError(
-                "controller.codegen=true needs controller.mode=switched without hysteresis "
+                "controller.codegen=true needs controller.schedule.mode=switched without "
+                "hysteresis "
                 f"(got mode={ctrl.mode.value}, hysteresis={margins})"
             )
         if ctrl.solver not in ("auto", "closed_form", "active_set"):

@@ -26,11 +26,11 @@ class _Axis:
     def __init__(self, label: str, index: int, values: Sequence[float], periodic: bool) -> None:
         vals = [float(v) for v in values]
         if not vals:
-            raise ConfigError(f"controller.operating_points.{label} is empty")
+            raise ConfigError(f"controller.schedule.operating_points.{label} is empty")
         key = [v % TWO_PI for v in vals] if periodic else vals
         if len(set(np.round(key, 12))) != len(key):
             raise ConfigError(
-                f"controller.operating_points.{label} has repeated values"
+                f"controller.schedule.operating_points.{label} has repeated values"
                 f"{' (modulo 2 pi)' if periodic else ''}: {vals}"
             )
         self.label, self.index, self.periodic = label, index, periodic
@@ -122,24 +122,25 @@ class OperatingGrid:
         hysteresis: Mapping[str, float] | None = None,
     ) -> None:
         if not points:
-            raise ConfigError("controller.operating_points is empty: give {state label: values}")
+            raise ConfigError("controller.schedule.operating_points is empty: give "
+                              "{state label: values}")
         self.axes: list[_Axis] = []
         for label, values in points.items():
             try:
                 idx = state_index(label)
             except ValueError as exc:
-                raise ConfigError(f"controller.operating_points: {exc}") from None
+                raise ConfigError(f"controller.schedule.operating_points: {exc}") from None
             self.axes.append(_Axis(label, idx, values, label == periodic))
         labels = [a.label for a in self.axes]
         hysteresis = dict(hysteresis or {})
         for label, h in hysteresis.items():
             if label not in labels:
                 raise ConfigError(
-                    f"controller.hysteresis: {label!r} is not a scheduling state; "
+                    f"controller.schedule.hysteresis: {label!r} is not a scheduling state; "
                     f"valid: {', '.join(labels)}"
                 )
             if float(h) < 0:
-                raise ConfigError(f"controller.hysteresis.{label} must be >= 0, got {h}")
+                raise ConfigError(f"controller.schedule.hysteresis.{label} must be >= 0, got {h}")
         self.hysteresis = [float(hysteresis.get(a.label, 0.0)) for a in self.axes]
         self.shape = tuple(len(a.values) for a in self.axes)
         self._strides = [int(np.prod(self.shape[i + 1 :])) for i in range(len(self.shape))]

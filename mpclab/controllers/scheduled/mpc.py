@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from enum import StrEnum
 from types import MappingProxyType
 from typing import Any
@@ -55,6 +56,7 @@ from mpclab.controllers.scheduled.generated_c import M4_COLUMN, ScheduledSIL
 from mpclab.controllers.scheduled.grid import TWO_PI, OperatingGrid
 from mpclab.controllers.scheduled.models import OpModel, switch_metrics, tracking_weights
 from mpclab.core.errors import ConfigError, parse_choice
+from mpclab.core.options import group
 from mpclab.core.status import Problem
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
@@ -82,6 +84,47 @@ OPERATING_POINTS: Mapping[str, Sequence[float]] = MappingProxyType(
     {"theta": (0.0, math.pi / 2, math.pi, -math.pi / 2), "V": (1.0, 2.0)})
 
 
+@dataclass(frozen=True)
+class Schedule:
+    """Which linear model predicts where (``controller.schedule``).
+
+    Parameters
+    ----------
+    mode
+        ``switched`` (the nearest operating point's model), ``interpolated`` (the models
+        blended by distance) or ``adaptive`` (the plant linearized at the state).
+    operating_points
+        ``{state label: values}``; the grid is their product.
+    nominal_state
+        Values of the other states at the operating points (default 0); inputs are 0.
+    hysteresis
+        ``{scheduling label: margin}`` for ``switched`` mode.
+    """
+
+    mode: ScheduleMode | str = ScheduleMode.switched
+    operating_points: Mapping[str, Sequence[float]] = field(
+        default_factory=lambda: OPERATING_POINTS)
+    nominal_state: Mapping[str, float] | None = None
+    hysteresis: Mapping[str, float] | None = None
+
+
+@dataclass(frozen=True)
+class ScheduledSolve:
+    """How a CVXPY solver is called (``controller.solve``; ``solver=CLARABEL`` or ``OSQP``).
+
+    Parameters
+    ----------
+    options
+        Keyword options for the solver.
+    via
+        For CLARABEL: ``auto``/``direct`` (the compiled data straight into a persistent
+        Clarabel solver) or ``problem`` (``Problem.solve`` every step).
+    """
+
+    options: Mapping[str, Any] | None = None
+    via: SolveVia | str = SolveVia.auto
+
+
 @component("controller", "scheduled", injected=("plant", "objective"))
 class ScheduledMPC(Controller):
     """Multiple linear MPC over a grid of operating points (switched, interpolated, adaptive).
@@ -91,8 +134,9 @@ class ScheduledMPC(Controller):
     plant, objective
         Injected; the objective's terms must be :class:`QuadraticTracking` (their weights are
         summed into one diagonal state, terminal and input weight).
-    mode
-        ``switched``, ``interpolated`` or ``adaptive``.
+    schedule
+        The operating points and how the model is picked (:class:`Schedule`: ``mode``,
+        ``operating_points``, ``nominal_state``, ``hysteresis``).
     horizon
         Prediction steps ``T``.
     control_horizon
@@ -100,20 +144,11 @@ class ScheduledMPC(Controller):
         or null (every move free); :mod:`mpclab.controllers.blocking`.
     dt
         Sample time [s]; the models are the plant's step over ``dt``.
-    operating_points
-        ``{state label: values}``; the grid is their product.
-    nominal_state
-        Values of the other states at the operating points (default 0); inputs are 0.
-    hysteresis
-        ``{scheduling label: margin}`` for ``switched`` mode.
     solver
         ``auto`` (closed form when there are 2 free variables, else active set),
         ``closed_form``, ``active_set``, or ``CLARABEL`` / ``OSQP`` through CVXPY.
-    solver_options
-        Keyword options for a CVXPY solver.
-    solve_via
-        For CLARABEL: ``auto``/``direct`` (the compiled data straight into a persistent
-        Clarabel solver) or ``problem`` (``Problem.solve`` every step).
+    solve
+        For a CVXPY solver (:class:`ScheduledSolve`): its keyword ``options``, and ``via``.
     codegen
         Step through the generated C of this controller (compiled with the machine's C
         compiler, cached; :mod:`mpclab.controllers.scheduled.generated_c`) instead of Python:
@@ -122,9 +157,6 @@ class ScheduledMPC(Controller):
         ``double`` or ``single`` (``float``, as the Cortex-M4F's FPU computes): the generated
         C's arithmetic in the loop, and the build whose time per step on the F401RE
         ``sim.latency=modelled`` (``sim=embedded_m4``) applies (:meth:`board_time_model`).
-    delay_compensation
-        Solve from the state predicted over the loop's expected latency with the input in
-        effect, the reference shifted by the same time (``Controller.step``).
     """
 
     log_columns = ("op",)
@@ -133,22 +165,19 @@ class ScheduledMPC(Controller):
         self,
         plant: Plant,
         objective: Objective,
-        mode: ScheduleMode | str = ScheduleMode.switched,
+        schedule: Schedule | Mapping[str, Any] = Schedule(),
         horizon: int = 32,
         control_horizon: ControlHorizon = 1,
         dt: float = 0.02,
-        operating_points: Mapping[str, Sequence[float]] = OPERATING_POINTS,
-        nominal_state: Mapping[str, float] | None = None,
-        hysteresis: Mapping[str, float] | None = None,
         solver: ScheduledQpSolver | str = ScheduledQpSolver.auto,
-        solver_options: Mapping[str, Any] | None = None,
-        solve_via: SolveVia | str = SolveVia.auto,
+        solve: ScheduledSolve | Mapping[str, Any] = ScheduledSolve(),
         codegen: bool = False,
         codegen_precision: Precision | str = Precision.double,
-        delay_compensation: bool = False,
     ) -> None:
-        super().__init__(plant, horizon, dt, delay_compensation)
-        self.mode = parse_choice(ScheduleMode, mode, "controller.mode")
+        super().__init__(plant, horizon, dt)
+        schedule = group(Schedule, schedule, "controller.schedule")
+        solved = group(ScheduledSolve, solve, "controller.solve")
+        self.mode = parse_choice(ScheduleMode, schedule.mode, "controller.schedule.mode")
         self.solver = parse_choice(ScheduledQpSolver, solver, "controller.solver")
         T, nx, nu = self.horizon, plant.nx, plant.nu
         self._nx, self._nu = nx, nu
@@ -167,16 +196,16 @@ class ScheduledMPC(Controller):
         self._E = self.blocking.matrix(nu)
         self._condense = condenser(nx, nu, self.blocking)
         self.grid = OperatingGrid(
-            operating_points or OPERATING_POINTS, plant.state_index,
-            plant.heading, hysteresis,
+            schedule.operating_points or OPERATING_POINTS, plant.state_index,
+            plant.heading, schedule.hysteresis,
         )
         self.heading_index = plant.state_index(plant.heading) if plant.heading else None
         xbar = np.zeros(nx)
-        for label, v in (nominal_state or {}).items():
+        for label, v in (schedule.nominal_state or {}).items():
             try:
                 xbar[plant.state_index(label)] = float(v)
             except ValueError as exc:
-                raise ConfigError(f"controller.nominal_state: {exc}") from None
+                raise ConfigError(f"controller.schedule.nominal_state: {exc}") from None
         self.op_states = []
         for point in self.grid.points():
             x = xbar.copy()
@@ -185,8 +214,8 @@ class ScheduledMPC(Controller):
             self.op_states.append(x)
         self._precompute()
         self._cvx = (
-            CvxpyBoxQP(self.lb, self.ub, self.solver.value, dict(solver_options or {}),
-                       solve_via)
+            CvxpyBoxQP(self.lb, self.ub, self.solver.value, dict(solved.options or {}),
+                       solved.via)
             if self.solver in (ScheduledQpSolver.CLARABEL, ScheduledQpSolver.OSQP) else None
         )
         self._active: int | None = None
