@@ -130,6 +130,9 @@ class LoopTiming:
     delay_compensation: bool | None = None
 
 
+LoopTimingConf = group_schema(LoopTiming)
+
+
 @dataclass
 class LocalizationConf:
     source: str = "truth"          # truth | odometry
@@ -142,7 +145,7 @@ class SimConf:
     _target_: str = "mpclab.world.sim_world.SimWorld"
     name: str = "nominal"
     latency: Any = "none"   # none | measured | a number of ms | one_sample | recorded | modelled
-    timing: Any = field(default_factory=group_schema(LoopTiming))
+    timing: LoopTimingConf = field(default_factory=LoopTimingConf)  # type: ignore[valid-type]
     noise: NoiseConf = field(default_factory=NoiseConf)
     disturbance: DisturbanceConf = field(default_factory=DisturbanceConf)
     plant_params: dict[str, float] = field(default_factory=dict)
