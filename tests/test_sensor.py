@@ -125,7 +125,7 @@ def test_scenario_metrics_heading_change_and_sign_changes() -> None:
         "u1": [5, -5, 5, -5, 0, 5, 5, 5, 5, 5, np.nan],   # 4 flips, the zero skipped
         "u2": [3] * (n - 1) + [np.nan],
     })
-    m = scen.metrics(steps)
+    m = scen.metrics(steps, {})
     assert m["heading_change_rad"] == pytest.approx(-7.0)
     assert m["max_heading_change_rad"] == pytest.approx(7.0)
     assert m["max_heading_change_rad"] > 2 * np.pi

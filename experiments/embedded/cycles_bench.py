@@ -52,7 +52,7 @@ def closed_loop(H: int, M: int, precision: str):
                        *QUIET])
     run = build_run(cfg)
     result = simulate(run)
-    return run, result, result.summary | run.scenario.metrics(result.steps)
+    return run, result, result.summary | run.scenario.metrics(result.steps, result.summary)
 
 
 def traced(library, x: np.ndarray, ref: np.ndarray, precision: pil.Precision) -> pd.DataFrame:

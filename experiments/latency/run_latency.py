@@ -71,7 +71,7 @@ def run(overrides: list[str]) -> dict:
     built = build_run(cfg)
     with c_stdout_silenced():
         result = simulate(built)
-    summary = result.summary | built.scenario.metrics(result.steps)
+    summary = result.summary | built.scenario.metrics(result.steps, result.summary)
     return {k: summary.get(k) for k in (*KEYS, "rms_position", "error")}
 
 

@@ -1,4 +1,5 @@
-"""Small statistics the tables report: exact binomial intervals for success rates.
+"""Small statistics the tables report: exact binomial intervals for success rates, and a
+bootstrap interval for a mean (BARN's score).
 
 The Clopper-Pearson bounds are the success probabilities at which the observed count sits at
 a binomial tail of ``(1 - level) / 2``; for whole counts that tail is a finite sum, solved here
@@ -10,6 +11,9 @@ about 0.3 s.)
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+
+import numpy as np
 
 
 def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
@@ -56,3 +60,20 @@ def _tail_quantile(m: int, n: int, target: float) -> float:
             lo = mid
         else:
             hi = mid
+
+
+def bootstrap_mean(
+    values: Sequence[float], level: float = 0.95, resamples: int = 10_000, seed: int = 0,
+) -> tuple[float, float]:
+    """The percentile bootstrap interval of the mean of ``values``: the ``(1 - level) / 2``
+    and ``(1 + level) / 2`` quantiles of the means of ``resamples`` resamples with
+    replacement, drawn from a seeded generator (a table repeats exactly). ``(nan, nan)``
+    without values; both ends the value for a single one."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
+    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)

@@ -146,7 +146,7 @@ def run_experiment(
         "scenario": run.scenario.name,
         "seed": int(cfg.seed),
         **result.summary,
-        **run.scenario.metrics(result.steps),
+        **run.scenario.metrics(result.steps, result.summary),
         **run.controller.metrics(result.steps),
         **(run.controller.blocking.summary() if run.controller.blocking else {}),
         PROBLEM_KEY: getattr(run.controller.solved_problem, "value", None),

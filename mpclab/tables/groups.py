@@ -12,7 +12,7 @@ import pandas as pd
 
 from mpclab.core.status import SOLVE_KEYS, SolveStatus
 from mpclab.record import files as record
-from mpclab.record.stats import clopper_pearson
+from mpclab.record.stats import bootstrap_mean, clopper_pearson
 
 #: parameters never grouped by: repetitions of the same configuration
 NOT_GROUPED = ("seed",)
@@ -52,13 +52,15 @@ def group_table(
     rate, each with its exact 95 % interval (Clopper-Pearson: ``success_low``,
     ``success_high``, ``collision_low``, ``collision_high``); time-outs; the least clearance
     of any run (continuous time); median arrival, median and p95
-    compute per controller call (wall and CPU), and runs flagged :func:`contended`.
+    compute per controller call (wall and CPU), and runs flagged :func:`contended`; on BARN
+    worlds, its time-out rate and mean score with their intervals (:data:`BARN_COLUMNS`).
 
     Step compute pools every controller call of the group's runs, from ``step_ms`` (run folder
     -> ms, as :func:`collect_runs` gives) or else from each run's ``steps.parquet``.
     """
     keys = group_keys(df)
     step_ms = step_ms or {}
+    barn = "barn_score" in df
     rows = []
     for values, g in df.groupby(keys, dropna=False, sort=True):
         missing = [r for r in g["run_dir"] if r not in step_ms]
@@ -85,6 +87,7 @@ def group_table(
             if numeric_column(g, "compute_cpu_median_ms").notna().any() else None,
             "contended_runs": int(flagged.fillna(False).sum()),
             **_solve_shares(g),
+            **(_barn(g) if barn else {}),
         })
     return pd.DataFrame(rows, columns=[
         *keys, "runs", "arrived", "collisions", "timeouts", "errors",
@@ -92,8 +95,25 @@ def group_table(
         "collision_rate", "collision_low", "collision_high", "min_clearance_m",
         "arrival_median_s",
         "step_median_ms", "step_p95_ms", "step_cpu_median_ms", "contended_runs",
-        "converged_fraction", *SOLVE_COUNTS,
+        "converged_fraction", *SOLVE_COUNTS, *(BARN_COLUMNS if barn else ()),
     ])
+
+
+#: the grouped table's BARN columns (runs on ``scenario=barn``): time-outs as the challenge
+#: counts them (a stall included) and the mean score, each with its 95 % interval
+BARN_COLUMNS = ("barn_timeout_rate", "barn_timeout_low", "barn_timeout_high",
+                "barn_score_mean", "barn_score_low", "barn_score_high")
+
+
+def _barn(g: pd.DataFrame) -> dict[str, Any]:
+    """A group's BARN figures: the time-out rate (exact interval) and the mean score
+    (bootstrap interval; a run without a score, as one that failed to start, scores 0)."""
+    timeouts = int(g["status"].isin(("timeout", "stalled")).sum())
+    scores = numeric_column(g, "barn_score").fillna(0.0).to_numpy()
+    lo, hi = bootstrap_mean(scores)
+    return {**_rate("barn_timeout", timeouts, len(g)),
+            "barn_score_mean": float(scores.mean()) if scores.size else float("nan"),
+            "barn_score_low": lo, "barn_score_high": hi}
 
 
 #: per-status solve counts of summary.json, summed over a group

@@ -278,7 +278,7 @@ class TrackingScenario(Scenario):
         if {"px", "py"} <= set(ref.columns):
             ax.plot(ref["px"], ref["py"], "--", color="k", lw=0.9, label="reference")
 
-    def metrics(self, steps: pd.DataFrame) -> dict[str, Any]:
+    def metrics(self, steps: pd.DataFrame, outcome: Mapping[str, Any]) -> dict[str, Any]:
         """RMS error per referenced state, overshoots, input jumps and bound excess."""
         plant = self.plant
         t = steps["t"].to_numpy()

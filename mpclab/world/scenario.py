@@ -104,8 +104,9 @@ class Scenario:
     #: the vehicle is a disc of this radius for :meth:`clearance` [m]
     robot_radius: float = 0.0
 
-    def metrics(self, steps: Any) -> dict[str, Any]:
-        """Scenario-specific figures for ``summary.json`` computed from the step log."""
+    def metrics(self, steps: Any, outcome: Mapping[str, Any]) -> dict[str, Any]:
+        """Scenario-specific figures for ``summary.json``, from the step log and the loop's
+        ``outcome`` (its summary: ``status``, ``arrival_time_s``, ...)."""
         return {}
 
     # The world hooks the loop calls each step; a scenario without obstacles or stall rule

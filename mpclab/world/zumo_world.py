@@ -241,7 +241,7 @@ class ObstacleScenario(Scenario):
         moved = np.linalg.norm(np.asarray(xs[-1])[self._ip] - np.asarray(xs[i])[self._ip])
         return bool(moved < rule.max_displacement_m)
 
-    def metrics(self, steps: Any) -> dict[str, Any]:
+    def metrics(self, steps: Any, outcome: Mapping[str, Any]) -> dict[str, Any]:
         """Besides the distances: how the path turned and how often each input changed sign
         (per simulated second; zero inputs skipped), the marks of a loop or of chatter."""
         xs = steps[list(self.plant.position)].to_numpy(dtype=float)
