@@ -172,8 +172,11 @@ def test_the_grouped_table_has_barns_rates_and_mean_score() -> None:
     scores = [0.4, 0.3, 0.45, 0.2, 0.35, 0.5, 0.0, 0.0, 0.0, None]  # one run wrote none
     df = pd.DataFrame({"backend": "casadi:fatrop", "scenario": "barn", "status": statuses,
                        "barn_score": scores, "run_dir": [f"r{i}" for i in range(10)],
-                       "arrival_time_s": 1.0})
-    g = group_table(df, {f"r{i}": np.array([1.0]) for i in range(10)}).iloc[0]
+                       "arrival_time_s": 1.0, "scenario.world": range(1, 11)})
+    df.attrs["params"] = ["scenario.world"]  # the sweep's worlds: pooled, as the challenge's
+    table = group_table(df, {f"r{i}": np.array([1.0]) for i in range(10)})
+    assert len(table) == 1 and "scenario.world" not in table
+    g = table.iloc[0]
     assert g["success_rate"] == pytest.approx(0.7) and g["collision_rate"] == pytest.approx(0.1)
     assert g["barn_timeout_rate"] == pytest.approx(0.2)
     assert g["barn_timeout_low"] < 0.2 < g["barn_timeout_high"]

@@ -14,8 +14,9 @@ from mpclab.core.status import SOLVE_KEYS, SolveStatus
 from mpclab.record import files as record
 from mpclab.record.stats import bootstrap_mean, clopper_pearson
 
-#: parameters never grouped by: repetitions of the same configuration
-NOT_GROUPED = ("seed",)
+#: parameters never grouped by: repetitions of the same configuration (the seed; a BARN
+#: world, one of the benchmark's sample, pooled as the challenge pools them)
+NOT_GROUPED = ("seed", "scenario.world")
 
 
 def numeric_column(df: pd.DataFrame, col: str) -> pd.Series:
@@ -36,7 +37,8 @@ def _step_times_ms(run_dirs: Iterable[str]) -> np.ndarray:
 
 def group_keys(df: pd.DataFrame) -> list[str]:
     """What the grouped table groups by: backend, scenario and every other parameter the
-    sweep varies, except the seed (a group is the repetitions of one configuration)."""
+    sweep varies, except :data:`NOT_GROUPED` (a group is the repetitions of one
+    configuration)."""
     named = {"controller", "scenario", *NOT_GROUPED}
     if "controller.solver" in df and "controller.solver" in df.attrs.get("params", []):
         named.add("controller.solver")  # in ``backend``
