@@ -45,6 +45,9 @@ class Problem(StrEnum):
     scheduled_linear = "scheduled_linear"
     #: no optimization: a learned approximation of a controller's law, evaluated
     policy = "policy"
+    #: no optimization: a finite set of candidate inputs searched exhaustively (the dynamic
+    #: window approach): exact over its candidates, not a solution of the OCP
+    sampled = "sampled"
 
 
 #: the summary's key of the :class:`Problem` a backend solves
