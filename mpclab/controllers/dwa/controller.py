@@ -8,10 +8,11 @@ out with the plant's own RK4 step (all candidates at once, a CasADi map), ``subs
 per sample. A candidate whose trajectory, at any of those steps, comes closer than ``margin``
 to a sensed point (the same detected points the MPC sees) is inadmissible: checked at the
 samples alone, a trajectory could cut a corner between them. Among the admissible ones the
-step takes the one of the highest weighted score: progress to the reference (the distance of the trajectory's end to the last
-point of the reference over the horizon: the goal, or a supervisor's target), clearance (the
-trajectory's least, capped at ``clearance_cap``) and speed (the end's displacement along the
-robot's heading), each scaled to [0, 1] over the admissible candidates.
+step takes the one of the highest weighted score: progress to the reference (the distance of
+the trajectory's end to the last point of the reference over the horizon: the goal, or a
+supervisor's target), clearance (the trajectory's least, capped at ``clearance_cap``) and
+speed (the end's displacement along the robot's heading), each scaled to [0, 1] over the
+admissible candidates.
 
 There is no optimization to converge: the search over the finite grid is exhaustive and exact
 (``Problem.sampled``). A step with no admissible candidate is ``infeasible`` and takes the
