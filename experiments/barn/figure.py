@@ -3,9 +3,9 @@ circle and the robot's path, coloured by how the run ended, with its score.
 
     uv run python experiments/barn/figure.py SWEEP_DIR --barn-dir DIR --out FILE.png
 
-``SWEEP_DIR`` is a sweep over ``scenario.world`` (``+sweep=barn_train``); ``--worlds`` picks
-the worlds (default: twelve, up to half of them failures, spread over the sweep's). The
-figure's caption is the script's stamp (command, commit, CPU, date), printed and written
+``SWEEP_DIR`` is a sweep over ``scenario.world`` (``+sweep=barn_train``; ``--experiment``
+picks one of several in it); ``--worlds`` picks the worlds (default: twelve, up to half of
+them failures, spread over the sweep's). The figure's caption is the script's stamp (command, commit, CPU, date), printed and written
 beside it as ``FILE.md``.
 """
 
@@ -50,8 +50,13 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--worlds", type=int, nargs="*")
     parser.add_argument("--count", type=int, default=12)
+    parser.add_argument("--experiment", help="the runs of this experiment only")
     args = parser.parse_args()
     df = pd.read_parquet(args.sweep / "summary.parquet")
+    if args.experiment:
+        df = df[df["experiment"] == args.experiment]
+        if df.empty:
+            parser.error(f"--experiment {args.experiment}: no run of it in {args.sweep}")
     if "seed" in df:  # one run per world: the first seed's
         df = df.sort_values("seed").drop_duplicates("scenario.world")
     worlds = args.worlds or pick(df, args.count)
