@@ -219,8 +219,11 @@ class BarnScenario(ObstacleScenario):
                 "held out from tuning; the training worlds are those not a multiple of 6 "
                 "(scenario.test_worlds=true to evaluate on a test world)")
         found = read_world(barn_dir, int(world))
+        if plant.heading is None:
+            raise ConfigError(f"scenario=barn needs a plant with a heading (the start faces +y); "
+                              f"{type(plant).__name__} has none")
         px, py = plant.position
-        heading = plant.heading or "theta"
+        heading = plant.heading
         start = {px: s * START[0], py: s * START[1], heading: math.pi / 2}
         goal = {px: s * GOAL[0], py: s * GOAL[1], heading: math.pi / 2}
         x0 = np.zeros(plant.nx)
