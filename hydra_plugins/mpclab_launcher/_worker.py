@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 from hydra_plugins.mpclab_launcher.recovery import JobBoard
 from hydra_plugins.mpclab_sweeper.tolerant_sweeper import record_job_error
 from mpclab.config.allowed_targets import check_config
-from mpclab.core.signals import worker_signals
+from mpclab.core.signals import interrupted, worker_signals
 from mpclab.sweeps.jobs import WORKERS_VAR
 
 log = logging.getLogger(__name__)
@@ -90,7 +90,15 @@ def run_one(
     the job's place on the pool's board (None: no board, as in the launching process)."""
     board = _WORKER.get("board") if slot is not None else None
     with board.running(slot) if board is not None else contextlib.nullcontext():
-        return _compose_and_run(idx, overrides)
+        try:
+            return _compose_and_run(idx, overrides)
+        except Exception as exc:
+            # a stop that hit Hydra's or OmegaConf's code around the job, handed back as
+            # another error, is a stop: the same command runs the job again
+            stop = interrupted(exc)
+            if stop is not None:
+                raise stop from exc
+            raise
 
 
 def _compose_and_run(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dict[str, Any]]:
@@ -107,6 +115,8 @@ def _compose_and_run(idx: int, overrides: Sequence[str]) -> tuple[JobReturn, dic
         sweep_config = ctx.config_loader.load_sweep_config(config, list(overrides))
         check_config(sweep_config, app=False)  # its hydra node, before run_job acts on it
     except Exception as exc:  # noqa: BLE001  (Hydra's ConfigCompositionException etc.)
+        if interrupted(exc) is not None:  # a stop, handed back as another error (above)
+            raise
         log.error("job %s cannot be composed: %s", " ".join(overrides), exc)
         ret = record_job_error(ctx, config, idx, overrides, exc)
     else:
