@@ -35,6 +35,8 @@ STATUSES = ("arrived", "stalled", "timeout", "collision", "error", "solver_faile
             "interrupted")
 #: the controller call's CPU time (this thread), beside its wall time ``solve_time_s``
 CPU_COLUMN = "solve_cpu_s"
+#: the CPU time of a step's sensing and the supervisor's decision (its map, its plan)
+SENSE_CPU_COLUMN = "sense_cpu_s"
 #: the least clearance over the period from a row's ``t`` to the next (continuous time)
 PATH_CLEARANCE = "clearance_path_m"
 
@@ -89,7 +91,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     ctrl.reset(x)
     sup.reset(x, scen.goal, scen.arrived)
     board_time = world.board_time(ctrl)  # sim.latency=modelled: the controller's model
-    log = _StepLog(plant, H, (CPU_COLUMN, *ctrl.log_columns), world, dt)
+    log = _StepLog(plant, H, (CPU_COLUMN, SENSE_CPU_COLUMN, *ctrl.log_columns), world, dt)
     # the closest approach between samples, along the path the simulated plant drives
     guard = ContinuousClearance(world.plant, scen.obstacles, scen.robot_radius)
     status, error, k, touched = "error", None, 0, False
@@ -114,7 +116,9 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
                 status = "timeout"
                 break
             measured = world.measure(x)
+            s0 = time.thread_time()
             ctx = sense(run, t, x, measured)
+            sense_cpu = time.thread_time() - s0
             # what acts until this step's input does, and when that is expected
             ctx.applied, ctx.latency_s = world.applied, world.expected_latency_s()
             ctx.predict = world.predicts
@@ -128,6 +132,7 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
             cs.info["solve_time_s"] = solve_time  # recorders see it with the step
             cs.info[CPU_COLUMN] = time.thread_time() - c0  # unlike wall time, not inflated
             # when other processes take the core (parallel sweeps)
+            cs.info[SENSE_CPU_COLUMN] = sense_cpu
             if world.estimated:  # noise or odometry: what the robot believed
                 cs.info["x_measured"] = measured
             if world.delayed:
@@ -337,6 +342,7 @@ def _summary(
     calls = record.controller_steps(steps)
     solve = calls["solve_time_s"].to_numpy()
     cpu = pd.to_numeric(calls[CPU_COLUMN], errors="coerce").to_numpy(dtype=float)
+    sensing = pd.to_numeric(calls[SENSE_CPU_COLUMN], errors="coerce").to_numpy(dtype=float)
     total = float(solve.sum())
     ms = solve * 1e3
     counts = solve_counts(calls["status"])
@@ -361,6 +367,9 @@ def _summary(
         # CPU over wall time of the controller calls: about 1 on an idle core, lower when
         # the process waited for a core (a loaded machine) and its wall times are inflated
         "compute_cpu_share": float(np.nansum(cpu) / total) if total > 0 else None,
+        # sensing and the supervisor, outside the controller call (a planner's search)
+        "sense_cpu_median_ms": float(np.nanmedian(sensing) * 1e3) if len(sensing) else None,
+        "sense_cpu_p95_ms": float(np.nanpercentile(sensing, 95) * 1e3) if len(sensing) else None,
         "solver_failures": failures,
         "converged_fraction": counts[SolveStatus.converged] / len(calls) if len(calls) else None,
         **{SOLVE_KEYS[st]: n for st, n in counts.items()},

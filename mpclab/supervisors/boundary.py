@@ -106,6 +106,29 @@ class DistanceGrid:
         return lines
 
 
+def shorter_side(p: FloatArray, points: FloatArray, goal: FloatArray) -> Side:
+    """The side to keep the obstacle ``points`` ``(m, 2)`` on, for a robot at ``p`` blocked
+    on its way to ``goal``: the one that goes round the obstacle by its nearer tangent point.
+
+    Seen from ``p``, the obstacle spans angles from the direction of the goal; its extreme
+    point on each side is a tangent point ``T``, and the way round that side is estimated as
+    ``|T - p| + |goal - T|`` (TangentBug's heuristic distance, Kamon, Rivlin and Rimon 1998,
+    over what has been seen of the obstacle). Going round by the left tangent keeps the
+    obstacle on the robot's right. An obstacle that reaches round behind the robot on one
+    side has its tangent there, far from the goal, so that side is the long one. Ties: right.
+    """
+    q = np.asarray(p, dtype=float).reshape(2)
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    to_goal = np.asarray(goal, dtype=float).reshape(2) - q
+    if not len(pts) or not np.any(to_goal):
+        return Side.right
+    rel = pts - q
+    angle = np.arctan2(to_goal[0] * rel[:, 1] - to_goal[1] * rel[:, 0], rel @ to_goal)
+    cost = [float(np.linalg.norm(t - q) + np.linalg.norm(goal - t))
+            for t in (pts[np.argmax(angle)], pts[np.argmin(angle)])]
+    return Side.right if cost[0] <= cost[1] else Side.left
+
+
 def encloses_free_space(line: FloatArray, side: Side) -> bool:
     """Whether a closed oriented level line has the free side inside (a pocket): walked
     with the boundary on the right it then turns counter-clockwise."""

@@ -40,17 +40,29 @@ from typing import Any
 import numpy as np
 
 from mpclab.config.registry import component
-from mpclab.core.errors import ConfigError, number, parse_choice
+from mpclab.core.errors import number, parse_choice
 from mpclab.core.options import group
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
-from mpclab.supervisors.base import Arrival, FloatArray, Supervisor
-from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path
+from mpclab.supervisors.base import Arrival, FloatArray, Supervisor, mode_terms
+from mpclab.supervisors.boundary import ObstacleMemory, Side, offset_path, shorter_side
 
 
 class Bug2Mode(StrEnum):
     go_to_goal = "go_to_goal"
     wall_follow = "wall_follow"
+
+
+class SideRule(StrEnum):
+    """Which side of the robot the boundary followed after a hit stays on."""
+
+    #: always the right (the study's right-hand rule)
+    right = "right"
+    #: always the left
+    left = "left"
+    #: at each hit, the side that goes round the obstacle the shorter way, as far as it has
+    #: been seen (:func:`~mpclab.supervisors.boundary.shorter_side`)
+    shorter = "shorter"
 
 
 #: the study's modes (eqs. 9 and 10); experiments name theirs in conf/supervisor/bug2.yaml
@@ -74,7 +86,9 @@ class BoundaryFollowing:
         In a pocket whose way out is narrower than twice ``clearance`` the path's distance
         is lowered down to this [m] (:mod:`~mpclab.supervisors.boundary`).
     side
-        ``right`` or ``left``: the side of the robot the followed boundary stays on.
+        ``right`` or ``left``: the side of the robot the followed boundary stays on;
+        ``shorter``: chosen at each hit, the side that goes round the obstacle hit by its
+        nearer tangent point (:class:`SideRule`).
     run_link
         Detected points nearer than this to each other belong to one obstacle [m]; None:
         twice ``clearance`` (a gap the path along a boundary cannot pass).
@@ -83,7 +97,7 @@ class BoundaryFollowing:
     path_speed: float = 0.0
     clearance: float = 0.08
     least_clearance: float = 0.07
-    side: Side | str = Side.right
+    side: SideRule | str = SideRule.right
     run_link: float | None = None
 
 
@@ -148,15 +162,7 @@ class Bug2(Supervisor):
         stuck: StuckRule | Mapping[str, Any] = StuckRule(),
         objective: Objective | None = None,
     ) -> None:
-        given = dict(modes or MODES)
-        valid = [m.value for m in Bug2Mode]
-        if sorted(given) != sorted(valid):
-            raise ConfigError(
-                f"supervisor.modes must name exactly the modes {valid}, got {sorted(given)}"
-            )
-        self.modes = {Bug2Mode(k): frozenset(str(t) for t in v) for k, v in given.items()}
-        if objective is not None:
-            check_modes(given, list(objective.terms))
+        self.modes = mode_terms(modes or MODES, Bug2Mode, objective)
         self.block_range = number(block_range, "supervisor.block_range", above=0)
         self.corridor = number(corridor_half_width, "supervisor.corridor_half_width", above=0)
         self.mline_tol = number(mline_tolerance, "supervisor.mline_tolerance", above=0)
@@ -171,7 +177,9 @@ class Bug2(Supervisor):
                                       above=0)
         self.run_link = (2 * self.clearance if b.run_link is None
                          else number(b.run_link, "supervisor.boundary.run_link", above=0))
-        self.side = parse_choice(Side, b.side, "supervisor.boundary.side")
+        self.side_rule = parse_choice(SideRule, b.side, "supervisor.boundary.side")
+        #: the side followed now (chosen at each hit under ``side=shorter``)
+        self.side = Side.left if self.side_rule is SideRule.left else Side.right
         rule = group(StuckRule, stuck, "supervisor.stuck")
         self.stuck_window = number(rule.window, "supervisor.stuck.window (0: off)",
                                    at_least=0)
@@ -222,6 +230,9 @@ class Bug2(Supervisor):
                 self.hits.append((float(t), float(p[0]), float(p[1])))
                 self._member = int(ids[block[np.argmin(np.linalg.norm(det[block] - p, axis=1))]])
                 self._path = None
+                if self.side_rule is SideRule.shorter:
+                    obstacle = self.memory.points[self.memory.obstacle(self._member)]
+                    self.side = shorter_side(p, obstacle, self._goal)
         elif self.at_goal(x) or self.can_leave(p, self._last) or self.goal_in_sight(p, det):
             self.mode = Bug2Mode.go_to_goal
             self.hit_point = None
@@ -361,24 +372,3 @@ class Window:
 
     def clear(self) -> None:
         self._items = []
-
-
-def check_modes(modes: Mapping[str, Sequence[str]], terms: Sequence[str]) -> None:
-    """Raise :class:`ConfigError` unless the modes name only the objective's terms and every
-    term is named by some mode."""
-    for mode, names in modes.items():
-        for name in names:
-            if name not in terms:
-                raise ConfigError(
-                    f"supervisor.modes.{mode} names the term {name!r}, which the objective does "
-                    f"not have; objective terms: {', '.join(terms)}"
-                )
-    used = {str(n) for names in modes.values() for n in names}
-    unused = [t for t in terms if t not in used]
-    if unused:
-        raise ConfigError(
-            f"objective term(s) {', '.join(map(repr, unused))} named by no supervisor mode "
-            f"would never be active; add them to supervisor.modes "
-            f"({'; '.join(f'{m}: {list(n)}' for m, n in modes.items())}) or remove them "
-            "from objective.terms"
-        )

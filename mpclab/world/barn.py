@@ -151,6 +151,10 @@ def score(success: bool, time_s: float | None, optimal_s: float) -> float:
     return optimal_s / min(max(time_s, 2 * optimal_s), 8 * optimal_s)
 
 
+#: the stall rule's window on BARN [s] (:class:`BarnConf`)
+STALL_WINDOW_S = 10.0
+
+
 @dataclass
 class BarnConf:
     _target_: str = "mpclab.world.barn.BarnScenario"
@@ -163,7 +167,10 @@ class BarnConf:
     test_worlds: bool = False
     robot_radius: float = 0.05
     sensor: SensorConf = field(default_factory=SensorConf)
-    stall: StallConf = field(default_factory=StallConf)
+    #: BARN has no stall rule, only its time limit; a run that makes no way for this long
+    #: ends early as a time-out (longer than the obstacle scenarios' 4 s: backing out of a
+    #: pocket between BARN's cylinders can take that long)
+    stall: StallConf = field(default_factory=lambda: StallConf(window_s=STALL_WINDOW_S))
 
 
 @component("scenario", "barn", BarnConf)
@@ -192,8 +199,11 @@ class BarnScenario(ObstacleScenario):
     test_worlds
         Allow the challenge's test worlds (0, 6, ..., 294: :data:`TEST_WORLDS`), held out
         from every design choice; false (default): refused.
-    robot_radius, sensor, stall
+    robot_radius, sensor
         As :class:`~mpclab.world.zumo_world.ObstacleScenario`.
+    stall
+        As :class:`~mpclab.world.zumo_world.ObstacleScenario`, over a window of
+        :data:`STALL_WINDOW_S` unless given (BARN itself ends a run at its time limit only).
     """
 
     def __init__(
@@ -250,7 +260,8 @@ class BarnScenario(ObstacleScenario):
             t_max=TIME_LIMIT * self.time_scale if t_max is None else t_max,
             layout={"obstacle_radius": s * radius, "discs": (s * cyl[:, :2]).tolist(),
                     "extent": [s * lo[0], s * hi[0], s * lo[1], s * hi[1]]},
-            robot_radius=robot_radius, sensor=sensor, stall=stall,
+            robot_radius=robot_radius, sensor=sensor,
+            stall={"window_s": STALL_WINDOW_S, **(stall or {})},
         )
 
     def metrics(self, steps: Any, outcome: Mapping[str, Any]) -> dict[str, Any]:
