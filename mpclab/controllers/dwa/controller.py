@@ -38,7 +38,8 @@ from mpclab.plants.base import Plant
 
 @dataclass(frozen=True)
 class DwaWeights:
-    """The score's weights (``controller.weights``), each term scaled to [0, 1] first.
+    """The score's weights (``controller.weights``), each term scaled to [0, 1] first;
+    chosen on BARN's training worlds (experiments/barn/README.md, "The peer").
 
     Parameters
     ----------
@@ -52,7 +53,7 @@ class DwaWeights:
 
     goal: float = 1.0
     clearance: float = 0.3
-    speed: float = 0.2
+    speed: float = 0.5
 
 
 @component("controller", "dwa", injected=("plant",))
@@ -79,7 +80,8 @@ class DwaController(Controller):
         The robot's disc [m].
     margin
         A candidate whose trajectory comes closer than this to a sensed point, surface to
-        surface, is inadmissible [m].
+        surface, is inadmissible [m]: the NMPC's 1.5 cm beyond its robot radius, plus the
+        5 mm of position noise and the 5 mm of range noise that ``sim=realistic`` states.
     clearance_cap
         Clearance beyond this scores no more [m].
     weights
@@ -97,7 +99,7 @@ class DwaController(Controller):
         substeps: int = 4,
         max_rate: float | None = None,
         robot_radius: float = 0.05,
-        margin: float = 0.015,
+        margin: float = 0.025,
         clearance_cap: float = 0.1,
         weights: DwaWeights | Mapping[str, Any] = DwaWeights(),
     ) -> None:
