@@ -107,6 +107,12 @@ def test_stall_rule() -> None:
     # a detour away from the goal is movement, not a stall
     detour = [np.array([0.4 + 0.02 * k, 0.8 + 0.01 * k, 0.0]) for k in range(21)]
     assert not scen.stalled(t, detour)
+    # out 0.2 m and back to where it was (a U-turn at a blocked gap): it moved
+    u_turn = [np.array([0.4 + 0.02 * min(k, 20 - k), 0.8, 0.0]) for k in range(21)]
+    assert not scen.stalled(t, u_turn)
+    # rocking 3 cm either way and back, in place: stalled
+    rocking = [np.array([0.4 + 0.03 * np.sin(k), 0.8, 0.0]) for k in range(21)]
+    assert scen.stalled(t, rocking)
 
 
 def test_scenario_metrics_heading_change_and_sign_changes() -> None:

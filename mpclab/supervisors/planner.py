@@ -146,6 +146,11 @@ class MapPlanner(Supervisor):
         How much more a cell at ``inflation`` costs than a free one.
     arrive_range
         The mode is ``arrive`` while the rest of the path is shorter than this [m].
+    commitment
+        Cells within ``comfort`` of the last path cost this fraction less (not blocked
+        ones): another way is taken only when it is that much cheaper. Without it, an
+        optimistic planner turns back each time the side it took proves longer than the
+        unseen other side promises, and the robot dithers.
     cell
         The grid's cell [m].
     pad
@@ -163,6 +168,7 @@ class MapPlanner(Supervisor):
         comfort: float = 0.12,
         comfort_weight: float = 4.0,
         arrive_range: float = 0.1,
+        commitment: float = 0.3,
         cell: float = 0.02,
         pad: float = 1.0,
         objective: Objective | None = None,
@@ -173,6 +179,10 @@ class MapPlanner(Supervisor):
         self.comfort = number(comfort, "supervisor.comfort", at_least=self.inflation)
         self.comfort_weight = number(comfort_weight, "supervisor.comfort_weight", at_least=0)
         self.arrive_range = number(arrive_range, "supervisor.arrive_range", at_least=0)
+        self.commitment = number(commitment, "supervisor.commitment", at_least=0)
+        if self.commitment >= 1:
+            raise ConfigError(f"supervisor.commitment: expected a fraction in [0, 1), got "
+                              f"{commitment!r}")
         self.cell = number(cell, "supervisor.cell", above=0)
         self.pad = number(pad, "supervisor.pad", above=0)
         self._ip = [plant.state_index(s) for s in plant.position]
@@ -192,6 +202,7 @@ class MapPlanner(Supervisor):
             raise ConfigError("supervisor=planner: the goal lies outside the planner's grid")
         self._goal_cell = int(row[0] * self.grid.shape[1] + col[0])
         self._next: np.ndarray | None = None  # per cell, the next cell toward the goal
+        self._route: np.ndarray | None = None  # the cells within comfort of the last path
         self._p = start
         self._line = np.vstack([start, self._goal])
         self._heading: float | None = None
@@ -217,7 +228,10 @@ class MapPlanner(Supervisor):
         """Search the grid from the goal: each cell's next cell on its cheapest way there."""
         a, b, length = self._edges
         cost = cell_costs(self.seen, self.cell, self.inflation, self.comfort,
-                          self.comfort_weight).ravel()
+                          self.comfort_weight)
+        if self._route is not None and self.commitment > 0:
+            cost[self._route & (cost < BLOCKED_COST)] *= 1.0 - self.commitment
+        cost = cost.ravel()
         n = cost.size
         weights = length * 0.5 * (cost[a] + cost[b])
         graph = sparse.csr_matrix((weights, (a, b)), shape=(n, n))
@@ -225,6 +239,10 @@ class MapPlanner(Supervisor):
                            return_predecessors=True)
         self._next = pred
         self.replans += 1
+        path = np.zeros(self.grid.shape, dtype=bool)
+        row, col, inside = self.grid.index(self.path())
+        path[row[inside], col[inside]] = True
+        self._route = distance_transform_edt(~path) * self.cell < self.comfort
 
     def path(self) -> FloatArray:
         """``(k, 2)``: the planned path from the robot's position to the goal."""

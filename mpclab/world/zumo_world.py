@@ -20,8 +20,9 @@ from mpclab.world.sensor import RangeSensor, SensorConf
 @dataclass
 class StallConf:
     """Stalled when over the last ``window_s`` the distance to the goal fell by less than
-    ``min_progress_m`` and the robot ended less than ``max_displacement_m`` from where it was
-    (``null``: progress alone decides, so a detour away from the goal counts as a stall)."""
+    ``min_progress_m`` and the robot stayed within ``max_displacement_m`` of where it was
+    all that time (``null``: progress alone decides, so a detour away from the goal counts
+    as a stall)."""
 
     window_s: float = 4.0
     min_progress_m: float = 0.01
@@ -238,7 +239,10 @@ class ObstacleScenario(Scenario):
             return False
         if rule.max_displacement_m is None:
             return True
-        moved = np.linalg.norm(np.asarray(xs[-1])[self._ip] - np.asarray(xs[i])[self._ip])
+        # stayed near where it was the whole window: a robot that drove off and came back
+        # (a U-turn at a blocked gap) moved, it did not stall
+        window = np.asarray(xs[i:])[:, self._ip]
+        moved = np.linalg.norm(window - window[0], axis=1).max()
         return bool(moved < rule.max_displacement_m)
 
     def metrics(self, steps: Any, outcome: Mapping[str, Any]) -> dict[str, Any]:
