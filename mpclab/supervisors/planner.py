@@ -31,16 +31,20 @@ from enum import StrEnum
 from types import MappingProxyType
 
 import numpy as np
-import scipy.sparse as sparse
-from scipy.ndimage import distance_transform_edt
-from scipy.sparse.csgraph import dijkstra
 
 from mpclab.config.registry import component
 from mpclab.core.errors import ConfigError, number
+from mpclab.core.lazy_import import lazy_import
 from mpclab.objectives.base import Objective
 from mpclab.plants.base import Plant
 from mpclab.supervisors.base import Arrival, FloatArray, Supervisor, mode_terms
 from mpclab.supervisors.boundary import walk
+
+# scipy's image and graph modules: paid only by runs that plan (composing imports every
+# supervisor's module)
+sparse = lazy_import("scipy.sparse")
+ndimage = lazy_import("scipy.ndimage")
+csgraph = lazy_import("scipy.sparse.csgraph")
 
 #: the cost factor of a cell within ``inflation`` of a seen point (doubled at the point): a
 #: way through such cells is taken only when no other is known, and a robot inside them
@@ -115,7 +119,7 @@ def cell_costs(seen: np.ndarray, cell: float, inflation: float, comfort: float,
     cells holding a detected point (module docstring)."""
     if not seen.any():
         return np.ones(seen.shape)
-    dist = distance_transform_edt(~seen) * cell
+    dist = ndimage.distance_transform_edt(~seen) * cell
     shortfall = np.clip((comfort - dist) / max(comfort - inflation, 1e-9), 0.0, 1.0)
     cost = 1.0 + weight * shortfall
     blocked = dist < inflation
@@ -235,14 +239,14 @@ class MapPlanner(Supervisor):
         n = cost.size
         weights = length * 0.5 * (cost[a] + cost[b])
         graph = sparse.csr_matrix((weights, (a, b)), shape=(n, n))
-        _, pred = dijkstra(graph, directed=False, indices=self._goal_cell,
+        _, pred = csgraph.dijkstra(graph, directed=False, indices=self._goal_cell,
                            return_predecessors=True)
         self._next = pred
         self.replans += 1
         path = np.zeros(self.grid.shape, dtype=bool)
         row, col, inside = self.grid.index(self.path())
         path[row[inside], col[inside]] = True
-        self._route = distance_transform_edt(~path) * self.cell < self.comfort
+        self._route = ndimage.distance_transform_edt(~path) * self.cell < self.comfort
 
     def path(self) -> FloatArray:
         """``(k, 2)``: the planned path from the robot's position to the goal."""
