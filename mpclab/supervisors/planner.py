@@ -191,8 +191,6 @@ class MapPlanner(Supervisor):
         self.pad = number(pad, "supervisor.pad", above=0)
         self._ip = [plant.state_index(s) for s in plant.position]
         self._ith = plant.state_index(plant.heading) if plant.heading else None
-        #: how many times the path was searched in this run
-        self.replans = 0
 
     def reset(self, x0: FloatArray, goal: FloatArray, arrived: Arrival | None = None) -> None:
         start = np.asarray(x0, dtype=float)[self._ip]
@@ -210,7 +208,6 @@ class MapPlanner(Supervisor):
         self._p = start
         self._line = np.vstack([start, self._goal])
         self._heading: float | None = None
-        self.replans = 0
 
     def update(
         self, t: float, x: FloatArray, detections: FloatArray
@@ -240,9 +237,8 @@ class MapPlanner(Supervisor):
         weights = length * 0.5 * (cost[a] + cost[b])
         graph = sparse.csr_matrix((weights, (a, b)), shape=(n, n))
         _, pred = csgraph.dijkstra(graph, directed=False, indices=self._goal_cell,
-                           return_predecessors=True)
+                                   return_predecessors=True)
         self._next = pred
-        self.replans += 1
         path = np.zeros(self.grid.shape, dtype=bool)
         row, col, inside = self.grid.index(self.path())
         path[row[inside], col[inside]] = True
