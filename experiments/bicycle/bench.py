@@ -168,6 +168,21 @@ def substeps_cost(scenario: str, n_steps: int) -> dict[str, float]:
             "adaptive_2_substeps_median_ms": med[2], "ratio": med[2] / med[1]}
 
 
+#: the columns of the tracking and switch table
+TRACKING = ["scenario", "mode", "rms_py", "rms_V", "input_jump_max_rel", "switch_jump_max_rel",
+            "switch_jump_max_delta", "n_switches"]
+
+
+def overshoot_by_dt(table: pd.DataFrame) -> pd.DataFrame:
+    """control_y_V's overshoot in y per mode, a column per sample time."""
+    lane = table[table["scenario"] == "control_y_V"]
+    wide = lane.pivot(index="mode", columns="dt", values="overshoot_py")
+    wide = wide.reindex([m for m in lane["mode"].unique()])
+    return pd.DataFrame({"mode": wide.index,
+                         **{f"overshoot_py {1e3 * dt:g} ms [m]": wide[dt].to_numpy()
+                            for dt in sorted(wide.columns)}})
+
+
 def fmt(df: pd.DataFrame) -> str:
     def cell(v):
         if isinstance(v, float):
@@ -194,7 +209,10 @@ def main() -> None:
 
         draw_all(out_root, HERE / "figures")
         parts += ["## Every scenario, mode and sample time (from each run's summary.json)", "",
-                  fmt(table), ""]
+                  fmt(table), "", "## Tracking and switches, 20 ms", "",
+                  fmt(table[table["dt"] == 0.02][TRACKING]), "",
+                  "## 50 ms against 20 ms on control_y_V (overshoot in y)", "",
+                  fmt(overshoot_by_dt(table)), ""]
         acc = model_accuracy()
         print(acc.to_string(index=False), flush=True)
         parts += ["## Discrete models against the exact zero-order hold (8 operating points)",

@@ -13,8 +13,9 @@ another, so each solve time is measured on an otherwise idle core.
     uv run python experiments/latency/run_latency.py            # results.csv/.md, figure
     uv run python experiments/latency/run_latency.py --only car  # one study
 
-Writes ``results.csv``, ``results.md`` (the table with its stamp: command, commit, CPU, date)
-and ``figures/arrival_vs_latency.png`` here.
+Writes ``results.csv``, ``results.md`` (every column, then the page's views of Studies A and B
+and of Study C, each under its stamp: command, commit, CPU, date) and
+``figures/arrival_vs_latency.png`` here.
 """
 
 from __future__ import annotations
@@ -106,8 +107,26 @@ def main() -> None:
                   f"misses {row['deadline_misses']}", flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(HERE / "results.csv", index=False)
-    write_stamped(HERE / "results.md", df.to_markdown(index=False, floatfmt=".3g"), sys.argv)
+    write_stamped(HERE / "results.md", [df.to_markdown(index=False, floatfmt=".3g"),
+                                        *views(df)], sys.argv)
     plot(df)
+
+
+def views(df: pd.DataFrame) -> list[str]:
+    """The page's two tables: Studies A and B by latency scale; Study C's runs."""
+    shown = df.assign(misses=[f"{m} / {n}" for m, n in zip(df["deadline_misses"], df["n_steps"],
+                                                          strict=True)])
+    ab = shown[shown["study"] != "bicycle"].rename(columns={
+        "latency_scale": "scale", "arrival_time_s": "arrival [s]",
+        "latency_median_ms": "latency median [ms]", "misses": "misses / steps",
+        "converged_fraction": "converged"})
+    c = shown[shown["study"] == "bicycle"].rename(columns={
+        "backend": "run", "misses": "misses / steps", "rms_position": "position RMS error [m]"})
+    ab_cols = ["study", "backend", "scale", "status", "arrival [s]", "latency median [ms]",
+               "misses / steps", "converged"]
+    c_cols = ["run", "status", "misses / steps", "position RMS error [m]"]
+    return [table[cols].to_markdown(index=False, floatfmt=".3g")
+            for table, cols in ((ab, ab_cols), (c, c_cols)) if len(table)]
 
 
 def plot(df: pd.DataFrame) -> None:

@@ -7,16 +7,21 @@ latencies with and without compensation; and whether ``sim=realistic`` repeats e
 
     uv run python experiments/latency/run_policies.py
 
-Prints a markdown table with the stamp line under it (nothing is written to disk).
+Prints the table and the repeat check, each under its stamp (command, commit, CPU, date), and
+writes them to ``policies.md`` beside this file.
 """
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import pandas as pd
 from run_latency import run
 
 from mpclab.core.native_output import c_stdout_silenced
-from mpclab.record.provenance import stamp
+from mpclab.record.files import TIMING_COLUMNS
+from mpclab.record.provenance import write_stamped
 from mpclab.runner.loop import simulate
 from mpclab.runner.single_run import build_run, compose
 
@@ -70,7 +75,7 @@ def step_log(overrides: list[str]) -> pd.DataFrame:
     built = build_run(cfg)
     with c_stdout_silenced():
         steps = simulate(built).steps
-    return steps.drop(columns=["solve_time_s", "solve_cpu_s"])  # wall and CPU time differ
+    return steps.drop(columns=[c for c in TIMING_COLUMNS if c in steps])  # times differ
 
 
 def main() -> None:
@@ -84,14 +89,12 @@ def main() -> None:
                          "misses / steps": f"{r['deadline_misses']} / {r['n_steps']}",
                          "position RMS [m]": "" if rms is None else f"{rms:.3f}"})
             print(rows[-1], flush=True)
-    print()
-    print(pd.DataFrame(rows).to_markdown(index=False))
-    print()
     a, b = step_log(REPEAT), step_log(REPEAT)
-    print(f"`{' '.join(REPEAT)}` twice: {len(a) - 1} steps each, step logs equal: {a.equals(b)}"
-          f" (latency median {1e3 * a['latency_s'].median():.2f} ms)")
+    repeat = (f"`{' '.join(REPEAT)}` twice: {len(a) - 1} steps each, step logs equal: "
+              f"{a.equals(b)} (latency median {1e3 * a['latency_s'].median():.2f} ms)")
     print()
-    print(stamp())
+    write_stamped(Path(__file__).resolve().parent / "policies.md",
+                  [pd.DataFrame(rows).to_markdown(index=False), repeat], sys.argv)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@ Aggregates every run record found below the given folders (one sweep, several sw
 ``outputs/``) into ``summary.parquet``, ``summary.csv``, ``summary.md``, ``groups.csv`` and
 ``arrival_vs_compute.png`` in ``--out`` (default: the first PATH); with ``--pareto`` also the
 Pareto front, with ``--rerun`` its runs side by side in one Rerun file
-(:mod:`mpclab.sweeps.report`).
+(:mod:`mpclab.sweeps.report`). The table it prints (the grouped one, or the front) is stamped
+(command, commit, CPU, date); ``--md FILE`` writes it to a file as well, for a page to show.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 
 from mpclab import tables
 from mpclab.core.errors import ConfigError, exit_on_bad_input
-from mpclab.record.provenance import stamp
+from mpclab.record.provenance import write_stamped
 from mpclab.sweeps.front_replay import FRONT_RECORDING, replay_front, replay_lines
 from mpclab.sweeps.pareto import write_pareto
 from mpclab.sweeps.report import write_report
@@ -41,6 +42,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"with --pareto: also {FRONT_RECORDING}, the front's runs (each "
                              "point's first seed) side by side in Rerun; runs the sweep did "
                              f"not record are run again into {tables.REPLAYED_RUNS}/")
+    parser.add_argument("--md", type=Path, default=None,
+                        help="also write the printed table (with --pareto: the front or "
+                             "--points), stamped, to this file")
     parser.add_argument("--objectives", default=None,
                         help="the front's objectives, comma-separated (default: the sweep's "
                              "config's, else arrival_s,step_p95_ms): "
@@ -64,8 +68,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         exit_on_bad_input(parser, exc)
     if report.runs.empty:
         parser.error(f"no run records below {', '.join(map(str, args.paths))}")
-    print(tables.markdown_table(report.groups))
+    shown_table = tables.markdown_table(report.groups)
     if args.pareto:
+        print(shown_table)
         objectives = points.attrs["objectives"]
         if args.points:
             spread = [f"{o}{s}" for o in objectives for s in ("", "_min", "_max")]
@@ -75,8 +80,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             shown = ["overrides", "runs", *objectives, "knee", "default"]
             title, table = "Pareto front", front(points)
         shown = [c for c in shown if c in table]
-        print(f"\n## {title}\n\n{tables.markdown_table(table[shown])}")
-        print(f"\n{stamp()}")
+        print(f"\n## {title}\n")
+        shown_table = tables.markdown_table(table[shown])
+    try:
+        write_stamped(args.md, shown_table)
+    except OSError as exc:  # an --md that cannot be written
+        exit_on_bad_input(parser, exc)
     if args.rerun:
         print("\n" + replay_lines(merged, replayed))
     print(f"\n{len(report.runs)} runs -> " + ", ".join(str(p) for p in report.files.values()))
