@@ -45,6 +45,16 @@ def test_a_file_this_command_rewrote_does_not_make_the_stamp_dirty(tmp_path, mon
     assert provenance._changed_before(tmp_path / "deleted.csv")
 
 
+def test_pages_and_results_do_not_make_the_stamp_dirty_code_and_inputs_do() -> None:
+    for page in ("README.md", "docs/sweeps.md", "experiments/latency/results.md",
+                 "experiments/pareto/zumo_grid.png", "experiments/bicycle/results.csv"):
+        assert not provenance.computes(page), page
+    for source in ("mpclab/runner/loop.py", "conf/controller/casadi.yaml",
+                   "conf/sim/profiles/zumo_bug2_fatrop.csv", "experiments/latency/run_latency.py",
+                   "pyproject.toml", "uv.lock", "conf/weights/zumo_nn.npz"):
+        assert provenance.computes(source), source
+
+
 def test_the_package_s_own_command_is_named_as_typed() -> None:
     argv = [str(provenance.ROOT / "mpclab" / "__main__.py"), "-m", "+experiment=car_cvxpy"]
     assert provenance.command(argv) == "uv run python -m mpclab -m +experiment=car_cvxpy"

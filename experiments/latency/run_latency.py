@@ -125,7 +125,8 @@ def views(df: pd.DataFrame) -> list[str]:
     ab_cols = ["study", "backend", "scale", "status", "arrival [s]", "latency median [ms]",
                "misses / steps", "converged"]
     c_cols = ["run", "status", "misses / steps", "position RMS error [m]"]
-    return [table[cols].to_markdown(index=False, floatfmt=".3g")
+    return [table[cols].astype(object).where(table[cols].notna(), None)
+            .to_markdown(index=False, floatfmt=".3g", missingval="")
             for table, cols in ((ab, ab_cols), (c, c_cols)) if len(table)]
 
 

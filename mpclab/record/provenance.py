@@ -22,9 +22,15 @@ ROOT = Path(__file__).resolve().parents[2]
 STARTED = time.time()
 
 
+#: suffixes of what a page shows (text, tables, figures): a page or a result file written by
+#: another command changes nothing a command computes
+PAGE_SUFFIXES = frozenset({".md", ".png", ".svg"})
+
+
 def commit() -> str:
     """The checked-out commit (short), ``+dirty`` when tracked files differed from it before
-    this command started (a result file the command itself rewrote does not count)."""
+    this command started (a result file the command itself rewrote does not count, nor a
+    page or a result another command wrote: :func:`computes`)."""
     def git(*args: str) -> str:
         try:
             return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True,
@@ -34,7 +40,18 @@ def commit() -> str:
 
     head = git("rev-parse", "--short", "HEAD").strip() or "unknown"
     changed = git("diff", "--name-only", "HEAD").splitlines()
-    return head + ("+dirty" if any(_changed_before(ROOT / p) for p in changed) else "")
+    dirty = any(computes(p) and _changed_before(ROOT / p) for p in changed)
+    return head + ("+dirty" if dirty else "")
+
+
+def computes(path: str) -> bool:
+    """Whether a tracked file (relative to the repository) can change what a command computes:
+    anything but a page, a figure or a table of results (under ``experiments/`` or ``docs/``,
+    or the README). A CSV under ``conf/`` (a latency profile) is an input, and counts."""
+    p = Path(path)
+    if p.suffix in PAGE_SUFFIXES and (p.parts[0] in ("experiments", "docs") or path == "README.md"):
+        return False
+    return not (p.parts[0] == "experiments" and p.suffix == ".csv")
 
 
 def _changed_before(path: Path) -> bool:
