@@ -22,10 +22,6 @@ STAMP = " · commit "
 
 #: stamped tables printed by their command, with no results file to check them against
 UNBACKED: set[tuple[str, str]] = {
-    ("experiments/bicycle/README.md", "uv run python experiments/bicycle/bench.py"),
-    ("experiments/latency/README.md", "uv run python -m mpclab"),
-    ("experiments/latency/README.md", "uv run python experiments/latency/run_latency.py"),
-    ("experiments/latency/README.md", "uv run python experiments/latency/run_policies.py"),
     ("experiments/pareto/README.md", "uv run python -m mpclab.tables"),
 }
 
