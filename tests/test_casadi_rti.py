@@ -57,12 +57,14 @@ def test_rti_step_is_one_sqpmethod_iteration(shooting, qp_solver) -> None:
     and the Hessian needs convexifying), the same step and new multipliers. (qrqp stops at
     its iteration cap on the dense single-shooting QP, in sqpmethod as here: two capped QP
     iterates are not compared.)"""
-    mpc = _zumo(shooting, qp_solver)
+    mpc = _zumo(shooting, qp_solver, hessian="exact")
     ocp, rti = mpc.ocp, mpc._full.rti
     w0, _ = mpc._initial_guess(X, _ctx())
     p = mpc._params(X, _ctx())
     lam = np.random.default_rng(0).normal(size=ocp.lbg.size) * 0.1
-    sol = rti.feedback(rti.prepare(w0, p, lam), p)
+    prep = rti.prepare(w0, p, lam)
+    sol = rti.feedback(prep, p)
+    rti.complete(prep, sol)  # the multipliers of a condensed QP's step
     name, opts = nlpsol_options(CasadiSolver.sqp_capped, CasadiQpSolver(qp_solver),
                                 max_iter=100, tol=1e-6, sqp_iterations=1, warm_start=True,
                                 equality=ocp.equality)
@@ -77,21 +79,27 @@ def test_rti_step_is_one_sqpmethod_iteration(shooting, qp_solver) -> None:
     assert sol.status is SolveStatus.truncated
 
 
-def test_initial_state_embedding_is_exact_under_multiple_shooting() -> None:
-    """Prepared at a predicted state, fed back the measured one: the QP prepared at the
-    measured state itself (the state enters the NLP linearly)."""
-    mpc = _zumo("multiple")
+@pytest.mark.parametrize("shooting", ["single", "multiple"])
+def test_every_parameter_of_the_sample_enters_at_feedback(shooting) -> None:
+    """Prepared for a predicted sample (another state, the point elsewhere, another input in
+    flight), fed back the measured one: the QP is the NLP linearized with the measured
+    sample's parameters, all of them (constraints, their Jacobian, the gradient), and only
+    the Hessian is the preparation's."""
+    mpc = _zumo(shooting)
     rti = mpc._full.rti
     w0, _ = mpc._initial_guess(X, _ctx())
-    predicted = X + np.array([0.01, -0.02, 0.05])
-    p_pred, p = mpc._params(predicted, _ctx()), mpc._params(X, _ctx())
-    embedded = rti.feedback(rti.prepare(w0, p_pred), p)
+    predicted = StepContext(goal=GOAL, target=np.tile(GOAL, (9, 1)),
+                            detections=POINT + np.array([[0.05, -0.04]]))
+    p_pred = mpc._params(X + np.array([0.01, -0.02, 0.05]), predicted)
+    p = mpc._params(X, _ctx())
+    assert np.abs(p_pred - p).max() > 0.01
+    fed = rti.feedback(rti.prepare(w0, p_pred), p)
     direct = rti.feedback(rti.prepare(w0, p), p)
-    np.testing.assert_allclose(embedded.w, direct.w, rtol=0, atol=1e-9)
-    fast = rti.fast  # x0 and u_prev embedded, the rest as prepared
-    np.testing.assert_array_equal(embedded.p[fast], p[fast])
-    slow = np.setdiff1d(np.arange(p.size), fast)
-    np.testing.assert_array_equal(embedded.p[slow], p_pred[slow])
+    np.testing.assert_array_equal(fed.p, p)
+    lin = rti._lin(w0, p)
+    for got, want in ((fed.g, lin[1]), (fed.c, lin[2]), (fed.a, lin[3].nonzeros())):
+        np.testing.assert_allclose(got, np.ravel(want), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fed.g, direct.g, rtol=0, atol=1e-12)
 
 
 def test_rti_at_the_nlps_solution_is_converged_and_elsewhere_truncated() -> None:
@@ -106,10 +114,12 @@ def test_rti_at_the_nlps_solution_is_converged_and_elsewhere_truncated() -> None
     p = mpc._params(X, ctx)
     at_opt = rti.prepare(io["x"].copy(), p, io["lam_g"].copy(), io["lam_x"].copy())
     sol = rti.feedback(at_opt, p)
+    rti.complete(at_opt, sol)
     rti.refine(at_opt, sol)
     assert sol.status is SolveStatus.converged and max(rti.kkt(at_opt, sol)) <= 1e-6
     cold = rti.prepare(mpc._initial_guess(X, ctx)[0], p)
     sol = rti.feedback(cold, p)
+    rti.complete(cold, sol)
     rti.refine(cold, sol)
     assert sol.status is SolveStatus.truncated and max(rti.kkt(cold, sol)) > 1e-3
 
@@ -119,7 +129,7 @@ def test_rti_closed_loop_records_its_phases(run_cfg) -> None:
     s, steps = res.summary, res.steps
     calls = steps[steps["status"] != "final"]
     assert s["arrived"] and s["solver"] == "sqp_rti"
-    for col in ("prep_s", "feedback_s", "feedback_cpu_s", "late_prep"):
+    for col in ("prep_s", "feedback_s", "feedback_cpu_s", "late_prep", "prep_overrun"):
         assert col in steps
     assert np.all(calls["prep_s"].to_numpy(dtype=float) > 0)
     assert np.all(calls["feedback_s"].to_numpy(dtype=float) > 0)
@@ -130,6 +140,7 @@ def test_rti_closed_loop_records_its_phases(run_cfg) -> None:
     # only the first call prepares after its measurement
     assert s["late_preps"] == 1 and bool(calls["late_prep"].iloc[0])
     assert s["feedback_median_ms"] > 0 and s["prep_median_ms"] > 0
+    assert s["prep_overruns"] == int(calls["prep_overrun"].sum())
 
 
 def test_two_rti_runs_give_identical_step_logs(run_cfg) -> None:

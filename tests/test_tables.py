@@ -248,7 +248,7 @@ def test_safety_bench_table_pairs_rates_and_lists_failed_seeds() -> None:
     def outcome(variant, seed, status, clearance):
         return bench.Outcome(variant, "zumo_random", seed, status,
                              3.0 if status == "arrived" else None, clearance,
-                             np.array([1.0, 2.0, 3.0]), 3, 3)
+                             np.array([1.0, 2.0, 3.0]), np.array([0.5, 1.0, 1.5]), 3, 3)
 
     outcomes = [outcome("a", 0, "arrived", 0.01), outcome("a", 1, "collision", -0.002),
                 outcome("a", 2, "timeout", 0.02), outcome("b", 0, "arrived", 0.012),
@@ -258,4 +258,5 @@ def test_safety_bench_table_pairs_rates_and_lists_failed_seeds() -> None:
     assert f"| a | 3 | 1 | 0.333 [{lo:.3f}, {hi:.3f}] | 1 | 0.3333 [{lo:.4f}, {hi:.4f}] | 1 | 0 |" \
         in text
     assert "| b | 3 | 2 | 0.667" in text and "| -2.0 |" in text and "| 12.0 |" in text
+    assert "| 2.00 | 3.00 | 1.00 | 1.50 |" in text  # CPU per call, then to the input
     assert "- a, collision: zumo_random 1" in text and "- b, stalled: zumo_random 2" in text

@@ -5,8 +5,8 @@ circle and the robot's path, coloured by how the run ended, with its score.
 
 ``SWEEP_DIR`` is a sweep over ``scenario.world`` (``+sweep=barn_train``; ``--experiment``
 picks one of several in it); ``--worlds`` picks the worlds (default: twelve, up to half of
-them failures, spread over the sweep's). The figure's caption is the script's stamp (command, commit, CPU, date), printed and written
-beside it as ``FILE.md``.
+them failures, spread over the sweep's). The figure's caption is the script's stamp (command,
+commit, CPU, date), printed and written beside it as ``FILE.md``.
 """
 
 from __future__ import annotations

@@ -8,7 +8,9 @@ interleaved seed by seed so that a busy machine slows every variant alike. Per v
 table gives the success (arrival) rate and the collision rate, each with its exact 95 %
 interval (Clopper-Pearson), time-outs, stalls, the least clearance of any run (continuous
 time) and the CPU time per controller call (median and p95, pooled over every call; CPU
-time, not wall time, so other processes on the machine do not inflate it). Seeds that
+time, not wall time, so other processes on the machine do not inflate it), and the CPU time
+up to the input (the real-time iteration's feedback; the whole call for any other
+controller). Seeds that
 collided or timed out are listed; with several scenarios, a second table gives each
 scenario's outcome per variant.
 The Markdown (``--md``) is stamped with the command, the git commit, the CPU model, the
@@ -32,6 +34,8 @@ from mpclab.record.stats import clopper_pearson
 from mpclab.runner.loop import CPU_COLUMN
 from mpclab.runner.single_run import compose, run_experiment
 
+#: the real-time iteration's CPU time from the call to its input (its step log's column)
+FEEDBACK_CPU = "feedback_cpu_s"
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
 #: the variants run when none is given: the experiment as it ships, and the same with the
@@ -55,6 +59,8 @@ class Outcome:
     arrival_time_s: float | None
     min_clearance_m: float | None
     cpu_ms: np.ndarray  # CPU time of every controller call [ms]
+    to_input_ms: np.ndarray  # CPU time of every call up to its input [ms]: the real-time
+    #                          iteration's feedback; the whole call for any other controller
     converged: int
     calls: int
 
@@ -66,9 +72,11 @@ def run_one(job: tuple[str, str, int, list[str], str]) -> Outcome:
     res = run_experiment(cfg, Path(out) / variant / scenario / f"seed_{seed}")
     calls = record.controller_steps(res.steps)
     cpu = calls[CPU_COLUMN].to_numpy(dtype=float) * 1e3
+    to_input = (calls[FEEDBACK_CPU].to_numpy(dtype=float) * 1e3 if FEEDBACK_CPU in calls
+                else cpu)
     s = res.summary
     return Outcome(variant, scenario, seed, s["status"], s["arrival_time_s"],
-                   s["min_clearance_m"], cpu,
+                   s["min_clearance_m"], cpu, to_input,
                    int(s.get("solves_converged", 0)), int(s["n_steps"]))
 
 
@@ -84,8 +92,8 @@ def table(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
     """The Markdown table, one row per variant, and the seeds that failed."""
     head = ("| variant | runs | arrived | success [95 % CI] | collisions | collision rate "
             "[95 % CI] | time-outs | stalled | other | least clearance mm | CPU/step median "
-            "ms | CPU/step p95 ms | converged |")
-    lines = [head, "|" + "---|" * 13]
+            "ms | CPU/step p95 ms | to input median ms | to input p95 ms | converged |")
+    lines = [head, "|" + "---|" * 15]
     notes = []
     for name in variants:
         rows = [o for o in outcomes if o.variant == name]
@@ -97,13 +105,15 @@ def table(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
         c_lo, c_hi = clopper_pearson(count["collision"], n)
         clear = [o.min_clearance_m for o in rows if o.min_clearance_m is not None]
         cpu = np.concatenate([o.cpu_ms for o in rows]) if rows else np.zeros(0)
+        to_input = np.concatenate([o.to_input_ms for o in rows]) if rows else np.zeros(0)
         conv = sum(o.converged for o in rows) / max(1, sum(o.calls for o in rows))
         lines.append(
             f"| {name} | {n} | {count['arrived']} | {count['arrived'] / n:.3f} "
             f"[{s_lo:.3f}, {s_hi:.3f}] | {count['collision']} | {count['collision'] / n:.4f} "
             f"[{c_lo:.4f}, {c_hi:.4f}] | {count['timeout']} | {count['stalled']} | {other} | "
             f"{1e3 * min(clear):.1f} | {np.median(cpu):.2f} | {np.percentile(cpu, 95):.2f} | "
-            f"{conv:.3f} |" if n else f"| {name} | 0 |" + " |" * 11)
+            f"{np.median(to_input):.2f} | {np.percentile(to_input, 95):.2f} | "
+            f"{conv:.3f} |" if n else f"| {name} | 0 |" + " |" * 13)
         for st in ("collision", "timeout", "stalled", "error", "solver_failed"):
             seeds = sorted((o.scenario, o.seed) for o in rows if o.status == st)
             if seeds:

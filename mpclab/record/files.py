@@ -27,9 +27,9 @@ HORIZONS = "horizons.parquet"
 SUMMARY = "summary.json"
 
 #: columns of steps.parquet whose values depend on wall-clock timing (sensing with the
-#: supervisor; the last three: the real-time iteration's phases, only in its runs)
+#: supervisor; the last four: the real-time iteration's phases, only in its runs)
 TIMING_COLUMNS = ("solve_time_s", "solve_cpu_s", "sense_cpu_s", "prep_s", "feedback_s",
-                  "feedback_cpu_s")
+                  "feedback_cpu_s", "prep_overrun")
 #: the ``status`` of steps.parquet's last row: the final state, after the last controller call
 FINAL = "final"
 

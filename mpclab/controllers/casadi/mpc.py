@@ -13,9 +13,10 @@ set, a soft one's slacks reported in the summary (``slack_steps``, ``slack_max_m
 * ``sqp``: CasADi's ``sqpmethod`` iterated to convergence (``max_iter`` SQP steps at most),
   one QP per step with ``qp_solver``, the Hessian of the Lagrangian made convex;
 * ``sqp_rti``: the real-time iteration (:mod:`mpclab.controllers.casadi.rti`): one QP per
-  sample, prepared at the end of the previous call (``prep_s`` in the step log) and solved
-  once the state is measured (``feedback_s``, the latency the loop's ``measured`` latency
-  model applies): ``truncated``, ``converged`` only at a KKT point;
+  sample, its Hessian (and, under multiple shooting, the states' elimination) prepared at the
+  end of the previous call (``prep_s`` in the step log), linearized with the sample's
+  parameters and solved once the state is measured (``feedback_s``, the latency the loop's
+  ``measured`` latency model applies): ``truncated``, ``converged`` only at a KKT point;
 * ``sqp_capped``: ``sqpmethod`` stopped after ``sqp_iterations`` SQP steps, all after the
   measurement: ``truncated`` unless it converges within them.
 
@@ -58,7 +59,7 @@ from mpclab.controllers.casadi.compile import (
 from mpclab.controllers.casadi.guess import StartingPoints, StepParameters
 from mpclab.controllers.casadi.ocp import OCP, Shooting, build_ocp
 from mpclab.controllers.casadi.options import CasadiBuild, CasadiSolve
-from mpclab.controllers.casadi.rti import RealTimeIteration, RtiLoop, RtiResult
+from mpclab.controllers.casadi.rti import RealTimeIteration, RtiHessian, RtiLoop, RtiResult
 from mpclab.controllers.casadi.solvers import (
     CasadiQpSolver,
     CasadiSolver,
@@ -121,7 +122,7 @@ class CasadiMPC(Controller):
     solve
         How the solver runs (:class:`~mpclab.controllers.casadi.options.CasadiSolve`:
         ``max_iter``, ``tol``, ``time_cap_ms``, ``warm_start``, ``qp_solver``,
-        ``sqp_iterations``, ``options``).
+        ``sqp_iterations``, ``hessian``, ``options``).
     build
         How the NLPs are built (:class:`~mpclab.controllers.casadi.options.CasadiBuild`:
         ``shooting``, ``jit``, ``jit_flags``, ``active_sets``).
@@ -165,6 +166,7 @@ class CasadiMPC(Controller):
         self.qp_solver = parse_choice(CasadiQpSolver, solve.qp_solver,
                                       "controller.solve.qp_solver")
         self.shooting = parse_choice(Shooting, build.shooting, "controller.build.shooting")
+        self.rti_hessian = parse_choice(RtiHessian, solve.hessian, "controller.solve.hessian")
         if int(solve.max_iter) < 1:
             raise ConfigError(f"controller.solve.max_iter must be >= 1, got {solve.max_iter}")
         if int(solve.sqp_iterations) < 1:
@@ -215,14 +217,14 @@ class CasadiMPC(Controller):
         self._lam_x: FloatArray | None = None
         self._lam_g: FloatArray | None = None
         self._w_prev: FloatArray | None = None
-        self._rti_loop = RtiLoop()  # the RTI's QP prepared for the coming sample
+        self._rti_loop = RtiLoop(self.dt)  # the RTI's QP prepared for the coming sample
 
     # ------------------------------------------------------------------ build once
     def _make_nlp(self, names: list[str], terminal: Any, extra: dict[str, Any]) -> _NLP:
         """The OCP of the terms ``names``, its solver (compiled if ``jit``) and buffers."""
         ocp = self._ocp(names, terminal, self.horizon)
         if self.rti:  # its own QP and linearization, no nlpsol
-            rti = RealTimeIteration(ocp, ("x0", "u_prev"), self.qp_solver, self.tol)
+            rti = RealTimeIteration(ocp, self.qp_solver, self.tol, self.rti_hessian)
             p = {"p": np.zeros(ocp.params.vector.numel())}  # what the last QP embedded
             return _NLP(names, ocp, rti.qp, None, None, p, False, rti=rti)
         cap = None if self.time_cap_ms is None else self.time_cap_ms / 1e3

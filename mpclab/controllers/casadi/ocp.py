@@ -115,6 +115,9 @@ class OCP:
     slack_idx: np.ndarray | None  # (T, n_soft) indices of the soft constraints' slacks
     slack_fn: ca.Function | None  # (w, p) -> the slacks' penalty (None without soft ones)
     plan_fn: ca.Function       # (w, p) -> X (nx, T+1)
+    #: the rows that fix the states (multiple shooting: the initial value, then each gap), in
+    #: the order of the states they fix; empty under single shooting
+    dynamics_rows: np.ndarray
 
 
 def build_ocp(
@@ -158,9 +161,14 @@ def build_ocp(
     g: list[ca.SX] = []
     lbg: list[np.ndarray] = []
     ubg: list[np.ndarray] = []
+    dynamics: list[np.ndarray] = []
+    count = [0]  # rows so far
 
-    def add(expr: Any, lo: Any, hi: Any) -> None:
+    def add(expr: Any, lo: Any, hi: Any, fixes_states: bool = False) -> None:
         n = int(expr.shape[0])
+        if fixes_states:
+            dynamics.append(np.arange(count[0], count[0] + n))
+        count[0] += n
         g.append(expr)
         lbg.append(np.broadcast_to(np.asarray(lo, float), (n,)).copy())
         ubg.append(np.broadcast_to(np.asarray(hi, float), (n,)).copy())
@@ -203,14 +211,16 @@ def build_ocp(
             if soft and k > 0:
                 var("slack", k, Sl[k], 0.0, np.inf)
             if k == 0:
-                add(ca.vertcat(Xs[0] - x0, *([Ss[0] - u_prev] if lift else [])), 0.0, 0.0)
+                add(ca.vertcat(Xs[0] - x0, *([Ss[0] - u_prev] if lift else [])), 0.0, 0.0,
+                    fixes_states=True)
             if k < T:  # a stage's gap-closing constraint, then its path constraints (the
                 # order fatrop's structure detection takes)
                 if k in starts:
                     var("u", move_of[k], Vs[move_of[k]], plant.u_lb, plant.u_ub)
                 nxt = plant.F(Xs[k], Us[k], dt)
                 gap = [Xs[k + 1] - nxt]
-                add(ca.vertcat(*gap, *([Ss[k + 1] - Us[k]] if lift else [])), 0.0, 0.0)
+                add(ca.vertcat(*gap, *([Ss[k + 1] - Us[k]] if lift else [])), 0.0, 0.0,
+                    fixes_states=True)
             if k > 0:
                 path(Xs[k])
                 rows(k, None, Xs[k], coupled=False)
@@ -251,5 +261,6 @@ def build_ocp(
         ubw=np.concatenate(ubw), x_idx=x_idx, u_idx=u_idx, s_idx=s_idx,
         slack_idx=slack_idx, slack_fn=ca.Function("penalty", [w, p], [pen]) if soft else None,
         plan_fn=ca.Function("plan", [w, p], [X]),
+        dynamics_rows=np.concatenate(dynamics) if dynamics else np.zeros(0, dtype=int),
     )
 

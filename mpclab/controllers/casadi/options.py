@@ -10,6 +10,7 @@ from typing import Any
 
 from mpclab.controllers.casadi.compile import DEFAULT_FLAGS
 from mpclab.controllers.casadi.ocp import Shooting
+from mpclab.controllers.casadi.rti import RtiHessian
 from mpclab.controllers.casadi.solvers import CasadiQpSolver
 
 
@@ -37,6 +38,10 @@ class CasadiSolve:
     sqp_iterations
         SQP steps per sample of ``sqp_capped`` (fewer if converged first); ``sqp_rti``
         takes one.
+    hessian
+        The Hessian of ``sqp_rti``'s QP: ``gauss_newton`` (the cost's alone: exact for the
+        least-squares terms under multiple shooting, no constraint curvature) or ``exact``
+        (the Lagrangian's), each clipped to be convex (:mod:`.rti`).
     options
         Extra options for ``nlpsol``, nested or dotted: ``{"fatrop": {"max_soc": 0}}`` is
         ``{"fatrop.max_soc": 0}`` (nested, each can be set from the command line:
@@ -49,6 +54,7 @@ class CasadiSolve:
     warm_start: bool = True
     qp_solver: CasadiQpSolver | str = CasadiQpSolver.qpoases
     sqp_iterations: int = 1
+    hessian: RtiHessian | str = RtiHessian.gauss_newton
     options: Mapping[str, Any] | None = None
 
 

@@ -2,38 +2,44 @@
 
 Diehl's real-time iteration (RTI) takes one SQP step per sample, split at the measurement:
 
-* **preparation** (:meth:`RealTimeIteration.prepare`, before the measurement): at a guess
-  ``w`` (the previous solution shifted by one step) with the parameters known then ``p``,
-  it evaluates the constraints ``g``, their Jacobian ``J``, the cost's gradient and the
-  Hessian of the Lagrangian ``f + lam' g`` (exact, made convex by clipping its eigenvalues
-  block by block, as CasADi's ``sqpmethod`` does with ``convexify_strategy=eigen-clip``),
-  and the sensitivities of ``g`` and of the cost's gradient to the *fast* parameters ``q``:
-  the measured state and the input in effect. The QP in the step ``d``
+* **preparation** (:meth:`RealTimeIteration.prepare`, between two samples): at a guess ``w``
+  (the plan shifted by one step) with the parameters predicted for the next sample, the QP's
+  Hessian, made convex by clipping its eigenvalues block by block (as CasADi's ``sqpmethod``
+  does with ``convexify_strategy=eigen-clip``). :class:`RtiHessian`: ``gauss_newton`` is the
+  cost's Hessian alone. Under multiple shooting the least-squares terms (tracking, effort,
+  input rate) are quadratic in the variables, so that this is their Gauss-Newton Hessian;
+  the constraints' curvature is left out, and a term that is not least squares (the
+  potentials) keeps its own Hessian, clipped. ``exact`` is the Lagrangian's
+  ``f + lam' g`` at the last multipliers.
+* **feedback** (:meth:`RealTimeIteration.feedback`, at the measurement): the constraints,
+  their Jacobian and the cost's gradient at ``w`` with *this* sample's parameters (the
+  measured state, the input in flight, the sensed points and their constraint data, the
+  supervisor's reference), then the one QP in the step ``d``
 
-      min 1/2 d' H d + c(q)' d   s.t.  lbg - g(q) <= J d <= ubg - g(q),  lbw - w <= d <= ubw - w
+      min 1/2 d' H d + grad' d   s.t.  lbg - g <= J d <= ubg - g,  lbw - w <= d <= ubw - w
 
-  with ``g(q) = g + G (q - q0)`` and ``c(q) = grad f + F (q - q0)`` is then fixed up to ``q``
-  (the initial-value embedding: exact where ``q`` enters the NLP linearly, as the initial
-  state does under multiple shooting; first order under single shooting, whose states are
-  the rollout from it). CasADi's ``conic`` factors its matrices inside each call (none of its
-  plugins takes a factorization made beforehand), so the preparation ends at the QP's data.
-* **feedback** (:meth:`RealTimeIteration.feedback`, after the measurement): ``q`` embedded
-  (two matrix-vector products), the one QP solved (``conic`` with ``controller.solve.qp_solver``),
-  ``w + d`` and the QP's multipliers the new iterate.
+  solved (``conic`` with ``controller.solve.qp_solver``); ``w + d`` and the QP's multipliers
+  are the new iterate. Nothing the QP holds is one sample old but the Hessian. The
+  linearization is a few microseconds of CasADi's virtual machine; CasADi's QP solvers
+  factor their matrices inside each call, so the QP's solve is the feedback's cost.
 
-Every other parameter (goal, reference, detected points, constraint data) is the one the
-preparation had. Convergence (:attr:`RtiResult.kkt`) is read on the QP's model at the
-linearization point: the constraint violation ``g(q)`` and the bounds at ``w``, and the
-gradient of the Lagrangian with the QP's multipliers, ``c(q) + J' lam_a + lam_x``, which the
-QP's optimality makes ``-H d``; both within ``tol`` (sqpmethod's ``tol_pr``, ``tol_du``) means
-``w`` was a KKT point (of the NLP itself where ``q`` enters linearly) and the step vanishes.
+HPIPM (``qp_solver=hpipm``, multiple shooting) solves the QP stage by stage with Riccati
+recursions: its rows are handed over in its stage order (:mod:`.stages`).
+
+Convergence (:attr:`RtiResult`, :meth:`RealTimeIteration.refine`) is read at the
+linearization point: the constraint violation ``g`` and the bounds at ``w``, and the gradient
+of the Lagrangian with the QP's multipliers, ``grad + J' lam_a + lam_x``, which the QP's
+optimality makes ``-H d``; both within ``tol`` (sqpmethod's ``tol_pr``, ``tol_du``) means ``w``
+was a KKT point of the NLP with this sample's parameters, and the step vanishes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import casadi as ca
@@ -43,8 +49,10 @@ from scipy.sparse import csc_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mpclab.controllers.base import FEEDBACK_KEY, ControlStep
+from mpclab.controllers.casadi.condensing import CondensedStep, Condenser, Elimination
 from mpclab.controllers.casadi.ocp import OCP
 from mpclab.controllers.casadi.solvers import CasadiQpSolver, bind_buffers, qp_options, read_status
+from mpclab.controllers.casadi.stages import StageLayout
 from mpclab.core.native_output import c_stdout_silenced
 from mpclab.core.status import USABLE, SolveStatus
 
@@ -55,38 +63,45 @@ FloatArray = npt.NDArray[np.float64]
 MARGIN = 1e-7
 
 
+class RtiHessian(StrEnum):
+    """The Hessian of the real-time iteration's QP (module docstring)."""
+
+    #: the cost's alone: Gauss-Newton for least-squares terms, no constraint curvature
+    gauss_newton = "gauss_newton"
+    #: the Lagrangian's at the last multipliers
+    exact = "exact"
+
+
 @dataclass
 class Prepared:
-    """One preparation: the linearization point and the QP's data that do not depend on
-    the fast parameters, with the sensitivities that embed them."""
+    """One preparation: the linearization point and the QP's Hessian there."""
 
     owner: RealTimeIteration
     w: FloatArray        # the linearization point
-    p: FloatArray        # the parameters it was prepared with
-    f: float             # the cost at ``w``
-    g: FloatArray        # g(w, p)
-    grad: FloatArray     # the cost's gradient at w
-    G: FloatArray        # dg/dq (ng, nq)
-    F: FloatArray        # d(grad f)/dq (nw, nq)
+    p: FloatArray        # the parameters predicted for it
     h: FloatArray        # the convexified Hessian's nonzeros (the QP's pattern)
-    a: FloatArray        # J's nonzeros
     lam_x0: FloatArray   # the QP's multiplier guesses
     lam_a0: FloatArray
+    elimination: Elimination | None = None  # the condensed QP's (dense QP solvers)
 
 
 @dataclass
 class RtiResult:
-    """The feedback's new iterate and how its QP went."""
+    """The feedback's new iterate and how its QP went (its multipliers after
+    :meth:`RealTimeIteration.complete`, between samples, for the condensed QP)."""
 
     w: FloatArray
-    lam_x: FloatArray
-    lam_g: FloatArray
-    p: FloatArray        # the parameters the QP embedded
+    lam_x: FloatArray | None
+    lam_g: FloatArray | None  # the constraints' multipliers, in the NLP's row order
+    p: FloatArray        # the parameters the QP was linearized with (the sample's)
     status: SolveStatus  # ``truncated`` (one SQP step; ``converged`` after :meth:`refine`
     #                      found a KKT point), or the QP's failure
     raw: str             # the QP solver's return string
-    g: FloatArray        # the constraints at the linearization point, ``q`` embedded
+    g: FloatArray        # the constraints at the linearization point
     c: FloatArray        # the cost's gradient there
+    a: FloatArray        # the constraints' Jacobian there (its nonzeros)
+    f: float             # the cost there
+    condensed: CondensedStep | None = None  # the condensed QP's step, to complete
 
 
 class RealTimeIteration:
@@ -96,30 +111,26 @@ class RealTimeIteration:
     ----------
     ocp
         The NLP and its bounds.
-    fast
-        The names of the parameters the feedback embeds (``x0``, ``u_prev``).
     qp_solver
-        The QP solver of ``conic``.
+        The QP solver of ``conic``; ``hpipm`` needs multiple shooting.
     tol
         The KKT tolerance of ``converged``.
+    hessian
+        The QP's Hessian (:class:`RtiHessian`).
     """
 
-    def __init__(self, ocp: OCP, fast: tuple[str, ...], qp_solver: CasadiQpSolver,
-                 tol: float) -> None:
+    def __init__(self, ocp: OCP, qp_solver: CasadiQpSolver, tol: float,
+                 hessian: RtiHessian = RtiHessian.gauss_newton) -> None:
         nlp = ocp.nlp
         w, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
-        self.ocp, self.tol = ocp, float(tol)
-        self.fast = np.concatenate([ocp.params.indices(n) for n in fast])
-        q = ca.vertcat(*[p[int(i)] for i in self.fast])
+        self.ocp, self.tol, self.hessian = ocp, float(tol), hessian
         lam = ca.SX.sym("lam_g", g.shape[0])
-        H, _ = ca.hessian(f + ca.dot(lam, g), w)
-        grad = ca.gradient(f, w)
+        lagrangian = f + ca.dot(lam, g) if hessian is RtiHessian.exact else f
+        H, _ = ca.hessian(lagrangian, w)
         J = ca.jacobian(g, w)
-        self._lin = ca.Function(
-            "rti_linearization", [w, p, lam],
-            [f, g, grad, J, ca.densify(ca.jacobian(g, q)), ca.densify(ca.jacobian(grad, q)),
-             H],
-            ["w", "p", "lam_g"], ["f", "g", "grad", "J", "G", "F", "H"])
+        self._lin = ca.Function("rti_linearization", [w, p], [f, g, ca.gradient(f, w), J],
+                                ["w", "p"], ["f", "g", "grad", "J"])
+        self._hess = ca.Function("rti_hessian", [w, p, lam], [H], ["w", "p", "lam_g"], ["H"])
         self._cost = ca.Function("rti_cost", [w, p], [f])
         n = int(w.shape[0])
         # the Hessian's blocks: the connected parts of its pattern with the diagonal, each
@@ -129,88 +140,127 @@ class RealTimeIteration:
         _, label = connected_components(
             csc_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n)), directed=False)
         self._blocks = [np.flatnonzero(label == b) for b in range(label.max() + 1)]
+        # the blocks grouped by size: index arrays (k, s, s) for one batched eigh each
+        self._batches = []
+        for size in sorted({b.size for b in self._blocks}):
+            idx = np.array([b for b in self._blocks if b.size == size])
+            self._batches.append((idx[:, :, None], idx[:, None, :]))
         pattern = np.zeros((n, n), dtype=bool)
         for b in self._blocks:
             pattern[np.ix_(b, b)] = True
         qr, qc = np.nonzero(pattern.T)  # column-major: CasADi's order of nonzeros
         h_sp = ca.Sparsity.triplet(n, n, qc.tolist(), qr.tolist())
         self._h_rows, self._h_cols = (np.asarray(a) for a in h_sp.get_triplet())
-        hr, hc = (np.asarray(a) for a in H.sparsity().get_triplet())
-        self._hess_at = (hr, hc)
+        self._hess_at = tuple(np.asarray(a) for a in H.sparsity().get_triplet())
         self._j_rows, self._j_cols = (np.asarray(a) for a in J.sparsity().get_triplet())
+        # the QP's rows: the NLP's, in the stage order a stage-wise solver reads
+        structure: dict[str, Any] = {}
+        order = np.arange(J.shape[0])
+        if qp_solver is CasadiQpSolver.hpipm:
+            layout = StageLayout.of(ocp, J.sparsity())
+            order, structure = layout.row_order, layout.conic_options()
+        a_sp = J[order.tolist(), :].sparsity()
+        numbered = ca.DM(J.sparsity(), np.arange(J.nnz(), dtype=float))
+        self._a_from_j = np.asarray(numbered[order.tolist(), :].nonzeros(), dtype=int)
+        self._order = order
+        self._silent = qp_solver is CasadiQpSolver.hpipm  # it prints from C on every call
         with c_stdout_silenced():  # qpOASES prints its banner whenever one is built
-            self.qp = ca.conic("rti_qp", qp_solver.value,
-                               {"h": h_sp, "a": J.sparsity()}, qp_options(qp_solver))
+            # a dense QP solver on multiple shooting: the condensed QP (states eliminated)
+            self._condenser = (Condenser(ocp, J.sparsity(), qp_solver)
+                               if ocp.x_idx is not None and qp_solver is not CasadiQpSolver.hpipm
+                               else None)
+            self.qp = self._condenser.qp if self._condenser else ca.conic(
+                "rti_qp", qp_solver.value, {"h": h_sp, "a": a_sp},
+                qp_options(qp_solver) | structure)
             self._lin_buf, self._lin_go, self._lin_io = bind_buffers(self._lin, {})
+            self._hess_buf, self._hess_go, self._hess_io = bind_buffers(self._hess, {})
             self._qp_buf, self._qp_go, self._qp_io = bind_buffers(self.qp, {})
         self._dense_h = np.zeros((n, n))
 
     # ---------------------------------------------------------------- preparation
     def prepare(self, w: FloatArray, p: FloatArray, lam_g: FloatArray | None = None,
                 lam_x: FloatArray | None = None) -> Prepared:
-        """Linearize at ``w`` with the parameters ``p`` and multipliers ``lam_g`` (zero:
-        the cost's Hessian alone), and load the QP's matrices (``H`` convexified, ``J``)."""
-        io = self._lin_io
+        """The QP's Hessian at ``w`` with the parameters ``p`` (and, for ``exact``, the
+        multipliers ``lam_g``; None: zero), convexified; the multipliers kept as the QP's
+        guesses."""
+        io = self._hess_io
         ng = self.ocp.lbg.size
         io["w"][:], io["p"][:] = w, p
         io["lam_g"][:] = 0.0 if lam_g is None else lam_g
-        self._lin_go()
-        nq = self.fast.size
+        self._hess_go()
+        h = self._convexified(io["H"])
+        elimination = None
+        if self._condenser is not None:  # the dynamics rows do not depend on p
+            lin = self._lin_io
+            lin["w"][:], lin["p"][:] = w, p
+            self._lin_go()
+            elimination = self._condenser.eliminate(lin["J"], self._dense_h)
         return Prepared(
-            self, np.array(w, dtype=float), np.array(p, dtype=float), float(io["f"][0]),
-            io["g"].copy(), io["grad"].copy(), io["G"].reshape(nq, ng).T.copy(),
-            io["F"].reshape(nq, w.size).T.copy(), self._convexified(io["H"]), io["J"].copy(),
+            self, np.array(w, dtype=float), np.array(p, dtype=float), h,
             np.zeros(w.size) if lam_x is None else np.array(lam_x, dtype=float),
-            np.zeros(ng) if lam_g is None else np.array(lam_g, dtype=float))
+            np.zeros(ng) if lam_g is None else np.array(lam_g, dtype=float)[self._order],
+            elimination)
 
     def _convexified(self, h_nz: FloatArray) -> FloatArray:
         """The Hessian's nonzeros with each block's eigenvalues clipped at :data:`MARGIN`,
-        as the QP's nonzeros (every block dense)."""
+        as the QP's nonzeros (every block dense); the blocks of one size in one batch."""
         Hd = self._dense_h
         Hd[:] = 0.0
         Hd[self._hess_at] = h_nz
-        for b in self._blocks:
-            if b.size == 1:
-                i = b[0]
-                Hd[i, i] = max(Hd[i, i], MARGIN)
-                continue
-            block = Hd[np.ix_(b, b)]
-            vals, vecs = np.linalg.eigh(block)
-            if vals[0] < MARGIN:
-                Hd[np.ix_(b, b)] = (vecs * np.maximum(vals, MARGIN)) @ vecs.T
+        for rows, cols in self._batches:
+            blocks = Hd[rows, cols]  # (k, s, s)
+            vals, vecs = np.linalg.eigh(blocks)
+            clip = vals[:, 0] < MARGIN
+            if clip.any():
+                v, q = np.maximum(vals[clip], MARGIN), vecs[clip]
+                Hd[rows[clip], cols[clip]] = (q * v[:, None, :]) @ q.transpose(0, 2, 1)
         return Hd[self._h_rows, self._h_cols]
 
     # ---------------------------------------------------------------- feedback
     def feedback(self, prep: Prepared, p: FloatArray) -> RtiResult:
-        """The QP of ``prep`` with the fast parameters of ``p`` embedded, solved: the new
-        iterate (its other parameters are ``prep``'s)."""
-        ocp, qp = self.ocp, self._qp_io
-        used = prep.p.copy()
-        used[self.fast] = p[self.fast]
-        dq = used[self.fast] - prep.p[self.fast]
-        g = prep.g + prep.G @ dq
-        c = prep.grad + prep.F @ dq
-        qp["h"][:], qp["a"][:], qp["g"][:] = prep.h, prep.a, c
-        qp["lba"][:], qp["uba"][:] = ocp.lbg - g, ocp.ubg - g
+        """The QP at ``prep``'s point linearized with this sample's parameters ``p``,
+        solved: the new iterate."""
+        ocp, lin, qp, order = self.ocp, self._lin_io, self._qp_io, self._order
+        lin["w"][:], lin["p"][:] = prep.w, p
+        self._lin_go()
+        g = lin["g"]
+        if self._condenser is not None and prep.elimination is not None:
+            step = self._condenser.solve(prep.elimination, lin["J"], lin["grad"], ocp.lbg - g,
+                                         ocp.ubg - g, ocp.lbw - prep.w, ocp.ubw - prep.w)
+            return RtiResult(prep.w + step.d, None, None, np.array(p, dtype=float),
+                             sqp_step(step.status), step.raw, g.copy(), lin["grad"].copy(),
+                             lin["J"].copy(), float(lin["f"][0]), condensed=step)
+        qp["h"][:], qp["a"][:], qp["g"][:] = prep.h, lin["J"][self._a_from_j], lin["grad"]
+        qp["lba"][:], qp["uba"][:] = (ocp.lbg - g)[order], (ocp.ubg - g)[order]
         qp["lbx"][:], qp["ubx"][:] = ocp.lbw - prep.w, ocp.ubw - prep.w
         qp["x0"][:] = 0.0
         qp["lam_x0"][:], qp["lam_a0"][:] = prep.lam_x0, prep.lam_a0
-        self._qp_go()
+        with c_stdout_silenced() if self._silent else contextlib.nullcontext():
+            self._qp_go()
         status, raw, _ = read_status(self._qp_buf)
-        if status is SolveStatus.converged:  # the QP's solution: one SQP step, not the NLP's
-            status = SolveStatus.truncated
-        return RtiResult(prep.w + qp["x"], qp["lam_x"].copy(), qp["lam_a"].copy(), used,
-                         status, raw, g, c)
+        status = sqp_step(status)
+        lam_g = np.empty(order.size)
+        lam_g[order] = qp["lam_a"]
+        return RtiResult(prep.w + qp["x"], qp["lam_x"].copy(), lam_g, np.array(p, dtype=float),
+                         status, raw, g.copy(), lin["grad"].copy(), lin["J"].copy(),
+                         float(lin["f"][0]))
+
+    def complete(self, prep: Prepared, sol: RtiResult) -> None:
+        """The full QP's multipliers of a condensed step (after the input is out)."""
+        if sol.condensed is not None and prep.elimination is not None:
+            assert self._condenser is not None
+            sol.lam_x, sol.lam_g = self._condenser.multipliers(prep.elimination, sol.condensed)
+            sol.condensed = None
 
     def kkt(self, prep: Prepared, sol: RtiResult) -> tuple[float, float]:
-        """(primal violation, dual residual) at the linearization point on the QP's model
-        with the QP's multipliers (module docstring)."""
+        """(primal violation, dual residual) at the linearization point with the QP's
+        multipliers (module docstring)."""
         ocp, w, g = self.ocp, prep.w, sol.g
         with np.errstate(invalid="ignore"):  # inf - inf of an unbounded side
             viol = np.concatenate([ocp.lbg - g, g - ocp.ubg, ocp.lbw - w, w - ocp.ubw, [0.0]])
         primal = float(np.nanmax(viol))
-        jt_lam = np.zeros(w.size)  # J' lam_a from J's nonzeros
-        np.add.at(jt_lam, self._j_cols, prep.a * sol.lam_g[self._j_rows])
+        jt_lam = np.zeros(w.size)  # J' lam_g from J's nonzeros
+        np.add.at(jt_lam, self._j_cols, sol.a * sol.lam_g[self._j_rows])
         dual = float(np.abs(sol.c + jt_lam + sol.lam_x).max()) if w.size else 0.0
         return primal, dual
 
@@ -222,6 +272,14 @@ class RealTimeIteration:
     def cost(self, w: FloatArray, p: FloatArray) -> float:
         """The NLP's cost at ``w`` (the iterate the feedback gave)."""
         return float(self._cost(w, p))
+
+
+def sqp_step(qp: SolveStatus) -> SolveStatus:
+    """The iterate's status from its QP's: a solved QP is one SQP step (``truncated``, not
+    the NLP's solution); a QP stopped short of its solution (an iteration cap) or failed
+    gives no SQP step at all (``failed``: the loop falls back)."""
+    return SolveStatus.truncated if qp is SolveStatus.converged else (
+        qp if qp is SolveStatus.infeasible else SolveStatus.failed)
 
 
 #: what the preparation starts from: ``(w, p, lam_g, lam_x)`` (None multipliers: zero)
@@ -238,15 +296,18 @@ class RtiLoop:
     measurement: a *late* preparation, counted in its feedback time.
 
     The step log gets :attr:`columns`: ``feedback_s`` (from the call to the input: the
-    parameters packed, the state embedded, the QP solved, its iterate checked against its
-    bounds; the latency; ``feedback_cpu_s`` its CPU time, which waits for a core do not
+    parameters packed, the QP linearized with them and solved, its iterate checked against
+    its bounds; the latency; ``feedback_cpu_s`` its CPU time, which waits for a core do not
     inflate), ``prep_s`` (after the input: the convergence check, the plan and its cost, the
-    next sample's preparation) and ``late_prep``.
+    next sample's preparation), ``late_prep`` and ``prep_overrun``: the feedback and the
+    preparation together took longer than the period, so that on a target the next sample's
+    QP would not be ready when its measurement comes.
     """
 
-    columns = ("prep_s", FEEDBACK_KEY, "feedback_cpu_s", "late_prep")
+    columns = ("prep_s", FEEDBACK_KEY, "feedback_cpu_s", "late_prep", "prep_overrun")
 
-    def __init__(self) -> None:
+    def __init__(self, period: float) -> None:
+        self.period = float(period)
         self.prepared: Prepared | None = None
 
     def reset(self) -> None:
@@ -269,6 +330,7 @@ class RtiLoop:
         sol = rti.feedback(prep, p)
         sol.w, sol.status, sol.raw = check(sol.w, sol.status, sol.raw)
         t1, c1 = time.perf_counter(), time.thread_time()  # the input is known
+        rti.complete(prep, sol)
         if sol.status in USABLE:
             rti.refine(prep, sol)
         res = finish(sol)
@@ -276,14 +338,15 @@ class RtiLoop:
         if res.ok:
             res.cost = rti.cost(sol.w, sol.p)
             self.prepared = rti.prepare(*next_point(res))
-        res.info |= {"prep_s": time.perf_counter() - t1, FEEDBACK_KEY: t1 - t0,
-                     "feedback_cpu_s": c1 - c0, "late_prep": late}
+        prep_s = time.perf_counter() - t1
+        res.info |= {"prep_s": prep_s, FEEDBACK_KEY: t1 - t0, "feedback_cpu_s": c1 - c0,
+                     "late_prep": late, "prep_overrun": t1 - t0 + prep_s > self.period}
         return res
 
     @staticmethod
     def metrics(steps: Any) -> dict[str, Any]:
-        """The phases over a run's step log: median and largest times [ms], and how many
-        calls prepared late."""
+        """The phases over a run's step log: median and largest times [ms], how many calls
+        prepared late and how many overran the period."""
         out: dict[str, Any] = {}
         for col in ("prep_s", "feedback_s"):
             v = np.asarray(steps[col], dtype=float) if col in steps else np.zeros(0)
@@ -291,6 +354,7 @@ class RtiLoop:
             name = col.removesuffix("_s")
             out[f"{name}_median_ms"] = float(np.median(v)) if v.size else None
             out[f"{name}_max_ms"] = float(v.max()) if v.size else None
-        late = steps["late_prep"] if "late_prep" in steps else []
-        out["late_preps"] = int(sum(bool(v) for v in late if v is not None and v == v))
+        for col, key in (("late_prep", "late_preps"), ("prep_overrun", "prep_overruns")):
+            flags = steps[col] if col in steps else []
+            out[key] = int(sum(bool(v) for v in flags if v is not None and v == v))
         return out
