@@ -58,7 +58,8 @@ class Elimination:
     Z: FloatArray       # (n, nI)
     E_inv: FloatArray   # (nD, nD)
     Hc: FloatArray      # Z' H Z, column-major nonzeros of the dense QP
-    HZ: FloatArray      # H Z
+    ZT: FloatArray      # Z', contiguous
+    HZT: FloatArray     # (H Z)', contiguous
     H: FloatArray       # the full Hessian (dense)
 
 
@@ -139,7 +140,8 @@ class Condenser:
         Z[self.I, np.arange(self.I.size)] = 1.0
         HZ = H @ Z
         Hc = Z.T @ HZ
-        return Elimination(Z, E_inv, ((Hc + Hc.T) / 2).ravel("F"), HZ, H.copy())
+        return Elimination(Z, E_inv, ((Hc + Hc.T) / 2).ravel("F"), np.ascontiguousarray(Z.T),
+                           np.ascontiguousarray(HZ.T), H.copy())
 
     def solve(self, el: Elimination, j_nz: FloatArray, c: FloatArray, lba: FloatArray,
               uba: FloatArray, lbx: FloatArray, ubx: FloatArray) -> CondensedStep:
@@ -153,7 +155,7 @@ class Condenser:
         off = J_O @ z0
         io = self._io
         io["h"][:] = el.Hc
-        io["g"][:] = el.Z.T @ c + el.HZ.T @ z0
+        io["g"][:] = el.ZT @ c + el.HZT @ z0
         if b.size:
             io["a"][:] = np.vstack([J_O @ el.Z, el.Z[D[b]]]).ravel("F")
             io["lba"][:] = np.concatenate([lba[O] - off, lbx[D[b]] - z0[D[b]]])

@@ -41,7 +41,9 @@ class CasadiSolve:
     hessian
         The Hessian of ``sqp_rti``'s QP: ``gauss_newton`` (the cost's alone: exact for the
         least-squares terms under multiple shooting, no constraint curvature) or ``exact``
-        (the Lagrangian's), each clipped to be convex (:mod:`.rti`).
+        (the Lagrangian's at the last multipliers), each clipped to be convex (:mod:`.rti`).
+        ``conf/controller/casadi_rti.yaml`` sets ``exact``: without the curvature of the
+        obstacle constraint the steps swing between the input bounds near an obstacle.
     options
         Extra options for ``nlpsol``, nested or dotted: ``{"fatrop": {"max_soc": 0}}`` is
         ``{"fatrop.max_soc": 0}`` (nested, each can be set from the command line:
