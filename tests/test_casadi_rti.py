@@ -167,3 +167,25 @@ def test_the_capped_sqp_keeps_its_iterations_and_the_rti_refuses_them() -> None:
         _zumo(sqp_iterations=3)
     with pytest.raises(ConfigError, match=r"controller\.build\.jit=true .*sqp_rti"):
         _zumo(jit=True)
+
+
+def test_an_unsafe_iterate_takes_more_qps_then_fails_to_the_fallback(run_cfg, monkeypatch):
+    """An iterate whose first predicted state is deeper inside an obstacle's margin than the
+    robot is now takes up to SAFETY_ITERATIONS more QPs at that sample; with a tolerance no
+    iterate can meet (below zero), every sample takes them all, fails and falls back."""
+    from mpclab.controllers.casadi import mpc, rti
+
+    monkeypatch.setattr(mpc, "SAFETY_TOLERANCE", -1.0)
+    res, _ = run_cfg(["+experiment=zumo_bug2", "controller=casadi_rti", "scenario.t_max=0.6"])
+    calls = res.steps[res.steps["status"] != "final"]
+    assert len(calls) >= 3
+    assert (calls["safety_qps"] == rti.SAFETY_ITERATIONS).all()
+    assert (calls["iterations"] == rti.SAFETY_ITERATIONS + 1).all()
+    assert (calls["status"] == "failed").all() and calls["fallback"].all()
+    assert calls["solver_status"].str.startswith("unsafe after").all()
+    assert res.summary["safety_qps"] == rti.SAFETY_ITERATIONS * len(calls)
+
+
+def test_a_safe_run_takes_no_extra_qp(run_cfg) -> None:
+    res, _ = run_cfg(["+experiment=car_casadi", "controller=casadi_rti"])
+    assert res.summary["arrived"] and res.summary["safety_qps"] == 0

@@ -101,6 +101,12 @@ class _NLP:
     deadline: Deadline | None = None
 
 
+#: how much deeper inside a soft constraint's margin [m] the real-time iteration's first
+#: predicted state may go than the robot is now before the sample takes more SQP steps (the
+#: margin budget's noise allowance)
+SAFETY_TOLERANCE = 1e-3
+
+
 @component("controller", "casadi", injected=("plant", "objective"))
 class CasadiMPC(Controller):
     """Nonlinear MPC with CasADi (fatrop, IPOPT, SQP to convergence, RTI or capped SQP).
@@ -344,11 +350,29 @@ class CasadiMPC(Controller):
             w1, _ = self.starts.guess(x1, res, ctx1, res.u, self._w_prev)
             return w1, p1, self._lam_g, self._lam_x
 
+        depth: list[float] = []  # how deep inside an obstacle's margin the robot is now
+
+        def safe(w: FloatArray) -> bool:
+            """The iterate's first predicted state no deeper inside a soft constraint's
+            margin (its slack) than the robot is now, within :data:`SAFETY_TOLERANCE`."""
+            ocp = nlp.ocp
+            if ocp.slack_idx is None:
+                return True
+            first = float(np.max(w[ocp.slack_idx[0]]))
+            if first <= SAFETY_TOLERANCE:
+                return True
+            if not depth:
+                det, mask = self._detections(x, ctx)
+                now = np.vstack([x, x])
+                depth.append(max((float(c.violation(x, now, det, mask)[0])
+                                  for c in self.constraints if c.soft), default=0.0))
+            return first <= depth[0] + SAFETY_TOLERANCE
+
         assert nlp.rti is not None
         return self._rti_loop.step(
             nlp.rti, lambda: self._params(x, ctx, nlp),
             lambda p: (self._initial_guess(x, ctx)[0], p, self._lam_g, self._lam_x),
-            self.starts.checked, finish, next_point)
+            self.starts.checked, finish, next_point, safe)
 
     def call_solver(self) -> None:
         """One call of the current NLP's solver on its arrays (in place, no conversions); wrap

@@ -282,6 +282,10 @@ def sqp_step(qp: SolveStatus) -> SolveStatus:
         qp if qp is SolveStatus.infeasible else SolveStatus.failed)
 
 
+#: the most SQP steps a sample adds to make an unsafe iterate safe (:meth:`RtiLoop.step`)
+SAFETY_ITERATIONS = 4
+
+
 #: what the preparation starts from: ``(w, p, lam_g, lam_x)`` (None multipliers: zero)
 Point = tuple[Any, ...]
 #: ``(w, status, raw) -> (w, status, raw)``: an iterate outside its bounds clipped or failed
@@ -304,7 +308,8 @@ class RtiLoop:
     QP would not be ready when its measurement comes.
     """
 
-    columns = ("prep_s", FEEDBACK_KEY, "feedback_cpu_s", "late_prep", "prep_overrun")
+    columns = ("prep_s", FEEDBACK_KEY, "feedback_cpu_s", "late_prep", "prep_overrun",
+               "safety_qps")
 
     def __init__(self, period: float) -> None:
         self.period = float(period)
@@ -316,11 +321,18 @@ class RtiLoop:
     def step(self, rti: RealTimeIteration, params: Callable[[], FloatArray],
              start: Callable[[FloatArray], Point], check: Check,
              finish: Callable[[RtiResult], ControlStep],
-             next_point: Callable[[ControlStep], Point]) -> ControlStep:
+             next_point: Callable[[ControlStep], Point],
+             safe: Callable[[FloatArray], bool] = lambda w: True) -> ControlStep:
         """One sample: ``params()`` are the measured sample's parameters, ``start(p)`` a
         late preparation's point, ``check(w, status, raw)`` decides whether the feedback's
         iterate is applied (its bounds), ``finish`` makes the step of it (the plan, the
-        multipliers kept), ``next_point(step)`` the next preparation's point."""
+        multipliers kept), ``next_point(step)`` the next preparation's point.
+
+        ``safe(w)`` says whether an iterate may be applied as it is (:meth:`CasadiMPC`: its
+        first predicted state no deeper inside an obstacle's margin than the robot is now).
+        An iterate that is not takes up to :data:`SAFETY_ITERATIONS` more SQP steps at this
+        sample, each linearized at the last iterate, before its input goes out (their time
+        is the feedback's); if none is safe, the step fails and the loop's fallback acts."""
         t0, c0 = time.perf_counter(), time.thread_time()
         p = params()
         prep = self.prepared
@@ -329,18 +341,30 @@ class RtiLoop:
             prep = rti.prepare(*start(p))
         sol = rti.feedback(prep, p)
         sol.w, sol.status, sol.raw = check(sol.w, sol.status, sol.raw)
+        extra = 0
+        while sol.status in USABLE and not safe(sol.w):
+            if extra == SAFETY_ITERATIONS:
+                sol.status, sol.raw = SolveStatus.failed, f"unsafe after {extra + 1} QPs"
+                break
+            rti.complete(prep, sol)
+            prep = rti.prepare(sol.w, p, sol.lam_g, sol.lam_x)
+            sol = rti.feedback(prep, p)
+            sol.w, sol.status, sol.raw = check(sol.w, sol.status, sol.raw)
+            extra += 1
         t1, c1 = time.perf_counter(), time.thread_time()  # the input is known
         rti.complete(prep, sol)
         if sol.status in USABLE:
             rti.refine(prep, sol)
         res = finish(sol)
+        res.iterations = 1 + extra
         self.prepared = None
         if res.ok:
             res.cost = rti.cost(sol.w, sol.p)
             self.prepared = rti.prepare(*next_point(res))
         prep_s = time.perf_counter() - t1
         res.info |= {"prep_s": prep_s, FEEDBACK_KEY: t1 - t0, "feedback_cpu_s": c1 - c0,
-                     "late_prep": late, "prep_overrun": t1 - t0 + prep_s > self.period}
+                     "late_prep": late, "prep_overrun": t1 - t0 + prep_s > self.period,
+                     "safety_qps": extra}
         return res
 
     @staticmethod
@@ -357,4 +381,7 @@ class RtiLoop:
         for col, key in (("late_prep", "late_preps"), ("prep_overrun", "prep_overruns")):
             flags = steps[col] if col in steps else []
             out[key] = int(sum(bool(v) for v in flags if v is not None and v == v))
+        extra = steps["safety_qps"] if "safety_qps" in steps else []
+        out["safety_qps"] = int(sum(int(v) for v in extra if v is not None and v == v))
+        out["samples_with_safety_qps"] = int(sum(1 for v in extra if v == v and v))
         return out
