@@ -183,6 +183,9 @@ def test_an_unsafe_iterate_takes_more_qps_then_fails_to_the_fallback(run_cfg, mo
     assert (calls["iterations"] == rti.SAFETY_ITERATIONS + 1).all()
     assert (calls["status"] == "failed").all() and calls["fallback"].all()
     assert calls["solver_status"].str.startswith("unsafe after").all()
+    # the Zumo holds at rest: the fallback stops it where it is
+    assert (calls[["u1", "u2"]].to_numpy() == 0.0).all()
+    assert np.allclose(res.steps[["x", "y"]].to_numpy(), res.steps[["x", "y"]].iloc[0])
     assert res.summary["safety_qps"] == rti.SAFETY_ITERATIONS * len(calls)
 
 

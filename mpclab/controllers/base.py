@@ -4,8 +4,9 @@
 what the solver did (converged, truncated at a cap, infeasible, failed, raised), with the
 solver's own return string and iteration count beside it. A backend implements ``_solve``;
 the base class turns an exception, an unusable status or a non-finite result into the
-fallback (the previous plan shifted by one step, or zero input when there is none) and
-records the status, so a failed solve never ends a run.
+fallback (the previous plan shifted by one step, or zero input when there is none or when
+the solver's step was found unsafe on a plant that holds at rest) and records the status, so
+a failed solve never ends a run.
 """
 
 from __future__ import annotations
@@ -92,6 +93,9 @@ class ControlStep:
     solver_status: str = ""
     iterations: int | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    #: the solver's step broke a safety check (the real-time iteration's): the fallback
+    #: stops a plant that holds at rest instead of following the previous plan
+    unsafe: bool = False
 
     @property
     def ok(self) -> bool:
@@ -229,7 +233,8 @@ class Controller(ABC):
     def _fallback(self, x: FloatArray, failed: ControlStep) -> ControlStep:
         prev = self._plan
         zero = self.plant.clip_input(np.zeros(self.plant.nu))
-        if prev is None or self.horizon == 0:
+        stop = failed.unsafe and self.plant.holds_at_rest
+        if prev is None or self.horizon == 0 or stop:
             u_pred, u = np.tile(zero, (self.horizon, 1)), zero
         else:
             u_pred = shift(prev.u_pred)

@@ -55,6 +55,9 @@ class Plant:
     plot_states: ClassVar[tuple[str, ...]] = ()
     #: the unit of each state and input label, for figures (``{"v": "m/s"}``)
     units: ClassVar[Mapping[str, str]] = {}
+    #: zero input holds the state where it is (a kinematic plant whose inputs are speeds):
+    #: the input a controller falls back to when its own step was found unsafe
+    holds_at_rest: ClassVar[bool] = False
 
     def __init__(
         self,

@@ -30,6 +30,7 @@ class Zumo(Plant):
     heading = "theta"
     plot_states = ("theta",)
     units = {"x": "m", "y": "m", "theta": "rad", "u1": "rad/s", "u2": "rad/s"}
+    holds_at_rest = True  # wheel speeds zero: the robot stands
 
     def rhs(self, x: ca.SX, u: ca.SX) -> ca.SX:
         theta = x[2]

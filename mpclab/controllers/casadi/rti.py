@@ -282,6 +282,8 @@ def sqp_step(qp: SolveStatus) -> SolveStatus:
         qp if qp is SolveStatus.infeasible else SolveStatus.failed)
 
 
+#: the start of an iterate's return string when no SQP step made it safe
+UNSAFE = "unsafe"
 #: the most SQP steps a sample adds to make an unsafe iterate safe (:meth:`RtiLoop.step`)
 SAFETY_ITERATIONS = 4
 
@@ -332,7 +334,8 @@ class RtiLoop:
         first predicted state no deeper inside an obstacle's margin than the robot is now).
         An iterate that is not takes up to :data:`SAFETY_ITERATIONS` more SQP steps at this
         sample, each linearized at the last iterate, before its input goes out (their time
-        is the feedback's); if none is safe, the step fails and the loop's fallback acts."""
+        is the feedback's); if none is safe, the step fails, ``unsafe``, and the fallback
+        stops a plant that holds at rest (else follows the previous plan)."""
         t0, c0 = time.perf_counter(), time.thread_time()
         p = params()
         prep = self.prepared
@@ -344,7 +347,7 @@ class RtiLoop:
         extra = 0
         while sol.status in USABLE and not safe(sol.w):
             if extra == SAFETY_ITERATIONS:
-                sol.status, sol.raw = SolveStatus.failed, f"unsafe after {extra + 1} QPs"
+                sol.status, sol.raw = SolveStatus.failed, f"{UNSAFE} after {extra + 1} QPs"
                 break
             rti.complete(prep, sol)
             prep = rti.prepare(sol.w, p, sol.lam_g, sol.lam_x)
@@ -357,6 +360,7 @@ class RtiLoop:
             rti.refine(prep, sol)
         res = finish(sol)
         res.iterations = 1 + extra
+        res.unsafe = sol.raw.startswith(UNSAFE)
         self.prepared = None
         if res.ok:
             res.cost = rti.cost(sol.w, sol.p)
