@@ -192,3 +192,9 @@ def test_an_unsafe_iterate_takes_more_qps_then_fails_to_the_fallback(run_cfg, mo
 def test_a_safe_run_takes_no_extra_qp(run_cfg) -> None:
     res, _ = run_cfg(["+experiment=car_casadi", "controller=casadi_rti"])
     assert res.summary["arrived"] and res.summary["safety_qps"] == 0
+
+
+def test_the_rti_hessian_is_refused_for_a_solver_that_builds_its_own() -> None:
+    with pytest.raises(ConfigError, match="controller.solve.hessian=exact applies to "
+                                          "controller.solver=sqp_rti"):
+        _zumo(solver="ipopt", hessian="exact")

@@ -173,6 +173,11 @@ class CasadiMPC(Controller):
                                       "controller.solve.qp_solver")
         self.shooting = parse_choice(Shooting, build.shooting, "controller.build.shooting")
         self.rti_hessian = parse_choice(RtiHessian, solve.hessian, "controller.solve.hessian")
+        if self.solver is not CasadiSolver.sqp_rti and self.rti_hessian is not RtiHessian(
+                CasadiSolve.hessian):
+            raise ConfigError(f"controller.solve.hessian={self.rti_hessian.value} applies to "
+                              f"controller.solver=sqp_rti (got {self.solver.value}, which "
+                              "builds its own Hessian)")
         if int(solve.max_iter) < 1:
             raise ConfigError(f"controller.solve.max_iter must be >= 1, got {solve.max_iter}")
         if int(solve.sqp_iterations) < 1:

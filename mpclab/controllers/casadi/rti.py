@@ -23,8 +23,11 @@ Diehl's real-time iteration (RTI) takes one SQP step per sample, split at the me
   linearization is a few microseconds of CasADi's virtual machine; CasADi's QP solvers
   factor their matrices inside each call, so the QP's solve is the feedback's cost.
 
-HPIPM (``qp_solver=hpipm``, multiple shooting) solves the QP stage by stage with Riccati
-recursions: its rows are handed over in its stage order (:mod:`.stages`).
+Under multiple shooting a dense QP solver (qpOASES, as ``casadi_rti`` ships) gets the QP
+condensed (:mod:`.condensing`): the preparation also eliminates the states through the
+dynamics rows, and the feedback solves the small dense QP in the moves and the slacks,
+hot-started from the previous sample's active set. HPIPM (``qp_solver=hpipm``) takes the
+uncondensed QP stage by stage, its rows in its stage order (:mod:`.stages`).
 
 Convergence (:attr:`RtiResult`, :meth:`RealTimeIteration.refine`) is read at the
 linearization point: the constraint violation ``g`` and the bounds at ``w``, and the gradient
