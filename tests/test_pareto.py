@@ -18,6 +18,7 @@ from rerun.chunk import RrdReader
 from conftest import ROOT, compose_cfg
 from mpclab.cli.tables import main as tables_main
 from mpclab.core.errors import ConfigError
+from mpclab.record import files as record
 from mpclab.recorders import rerun_blueprint as ent
 from mpclab.recorders.merge import entity_name
 from mpclab.sweeps.front_replay import FRONT_RECORDING, rerun_command
@@ -250,3 +251,27 @@ def test_the_bicycle_front_is_configured_on_the_cortex_m4_estimate() -> None:
     assert pts.loc[32, "step_m4_p95_ms"] == pytest.approx(0.8)
     none = pareto_points(df.drop(columns="step_m4_p95_ms"), objectives)
     assert none["step_m4_p95_ms"].isna().all() and not none["front"].any()
+
+
+def test_the_time_to_the_input_is_the_rti_feedback_and_any_other_call_whole(tmp_path) -> None:
+    """``input_cpu_p95_ms`` reads a real-time iteration's feedback CPU time (its preparation
+    runs after the input) and the whole call's CPU time of any other controller; the RTI's
+    ``step_cpu_p95_ms`` stays the whole call."""
+    rows = []
+    for name, calls in (("rti", {"solve_cpu_s": 1e-3, "feedback_cpu_s": 3e-4}),
+                        ("fatrop", {"solve_cpu_s": 2e-3})):
+        run = tmp_path / name
+        run.mkdir()
+        steps = pd.DataFrame({"status": ["truncated"] * 10 + [record.FINAL],
+                              **{k: [v] * 10 + [np.nan] for k, v in calls.items()}})
+        steps.to_parquet(run / record.STEPS)
+        rows.append({"controller": name, "seed": 0, "run_dir": str(run), "status": "arrived",
+                     "arrival_time_s": 5.0})
+    df = pd.DataFrame(rows)
+    df.attrs["params"] = ["controller", "seed"]
+    objectives = (ParetoObjective.arrival_s, ParetoObjective.input_cpu_p95_ms,
+                  ParetoObjective.step_cpu_p95_ms)
+    pts = pareto_points(df, objectives, {}).set_index("controller")
+    assert pts.loc["rti", "input_cpu_p95_ms"] == pytest.approx(0.3)
+    assert pts.loc["rti", "step_cpu_p95_ms"] == pytest.approx(1.0)
+    assert pts.loc["fatrop", "input_cpu_p95_ms"] == pytest.approx(2.0)
