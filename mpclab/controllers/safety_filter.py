@@ -10,7 +10,7 @@ CBF condition on the next state, linearized in the input::
 (linearized at ``u_nom``, then again at each answer, ``iterations`` times at most) with
 ``h_i(p) = |p - q_i|^2 - R_i^2`` for each detected point ``q_i``, ``R_i = min(R,
 |p_0 - q_i|)`` (standing still always keeps the condition), ``p_1(u)`` the position one
-model step ahead and ``J = dp_1/du`` by central differences. The QP has as many variables as
+model step ahead and ``J = dp_1/du`` the plant's step Jacobian. The QP has as many variables as
 the plant has inputs; it is solved exactly by enumerating active sets of at most ``nu``
 constraints (every candidate feasible, the nearest taken). The step's ``info`` says whether
 the filter changed the input (``safety_filter``: 0 untouched, 1 modified, 2 no input kept
@@ -92,48 +92,40 @@ class SafetyFilter:
                 break
         return u_nom + d, code
 
-    def _jacobian(self, x: FloatArray, u: FloatArray, eps: float = 1e-6) -> FloatArray:
-        """``dp_1/du`` ``(2, nu)`` by central differences."""
-        J = np.empty((2, len(u)))
-        for j in range(len(u)):
-            e = np.zeros(len(u))
-            e[j] = eps
-            J[:, j] = (self._p1(x, u + e) - self._p1(x, u - e)) / (2 * eps)
-        return J
+    def _jacobian(self, x: FloatArray, u: FloatArray) -> FloatArray:
+        """``dp_1/du`` ``(2, nu)``: the position rows of the plant's step Jacobian (derived
+        from its ``rhs``)."""
+        return self.plant.jacobians(x, u, self.dt)[1][self._ip]
 
     @staticmethod
     def _qp(A: FloatArray, b: FloatArray, lb: FloatArray, ub: FloatArray,
             ) -> tuple[FloatArray, int]:
         """``min |d|^2 s.t. A d >= b, lb <= d <= ub`` by enumerating active sets of at most
-        ``nu`` rows; ``(d, 1)``, or ``(d, 2)`` the least violating ``d`` when none holds."""
+        ``nu`` rows, every set of one size at once; ``(d, 1)``, or ``(d, 2)`` the least
+        violating ``d`` within the bounds when none holds."""
         nu = A.shape[1]
         near = b > -np.abs(A).sum(axis=1) * np.max(ub - lb)   # rows that can bind
-        rows = [(A[i], b[i]) for i in np.flatnonzero(near)]
-        for j in range(nu):                                    # d_j >= lb_j, -d_j >= -ub_j
-            e = np.zeros(nu)
-            e[j] = 1.0
-            if np.isfinite(lb[j]):
-                rows.append((e, lb[j]))
-            if np.isfinite(ub[j]):
-                rows.append((-e, -ub[j]))
-        Ar = np.array([r[0] for r in rows])
-        br = np.array([r[1] for r in rows])
-        best, best_norm, least, least_viol = None, np.inf, np.zeros(nu), np.inf
-        for size in range(0, nu + 1):
-            for S in combinations(range(len(rows)), size):
-                if size:
-                    AS = Ar[list(S)]
-                    try:
-                        d = AS.T @ np.linalg.solve(AS @ AS.T, br[list(S)])
-                    except np.linalg.LinAlgError:
-                        continue
-                else:
-                    d = np.zeros(nu)
-                viol = float(np.max(br - Ar @ d))
-                n = float(d @ d)
-                if viol <= 1e-9 and n < best_norm:
-                    best, best_norm = d, n
-                bound_ok = np.all(d >= lb - 1e-9) and np.all(d <= ub + 1e-9)
-                if bound_ok and viol < least_viol:
-                    least, least_viol = d, viol
-        return (best, 1) if best is not None else (least, 2)
+        eye = np.eye(nu)
+        lower, upper = np.isfinite(lb), np.isfinite(ub)
+        Ar = np.vstack([A[near], eye[lower], -eye[upper]])    # d_j >= lb_j, -d_j >= -ub_j
+        br = np.concatenate([b[near], lb[lower], -ub[upper]])
+        candidates = [np.zeros((1, nu))]                        # the empty set first
+        for size in range(1, min(nu, len(br)) + 1):
+            S = np.array(list(combinations(range(len(br)), size)), dtype=int)
+            AS = Ar[S]                                          # (sets, size, nu)
+            G = AS @ AS.transpose(0, 2, 1)
+            scale = np.prod(np.diagonal(G, axis1=1, axis2=2), axis=1)
+            ok = np.abs(np.linalg.det(G)) > 1e-12 * scale       # independent rows only
+            if ok.any():
+                lam = np.linalg.solve(G[ok], br[S[ok]][..., None])
+                candidates.append((AS[ok].transpose(0, 2, 1) @ lam)[..., 0])
+        D = np.vstack(candidates)                               # (candidates, nu)
+        viol = np.max(br[None] - D @ Ar.T, axis=1)
+        norm = np.sum(D * D, axis=1)
+        feasible = viol <= 1e-9
+        if feasible.any():
+            return D[np.flatnonzero(feasible)[np.argmin(norm[feasible])]], 1
+        within = np.all((D >= lb - 1e-9) & (D <= ub + 1e-9), axis=1)
+        if not within.any():
+            return np.zeros(nu), 2
+        return D[np.flatnonzero(within)[np.argmin(viol[within])]], 2
