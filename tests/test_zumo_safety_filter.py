@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mpclab.controllers.safety_filter import SafetyFilter
+from mpclab.controllers.safety_filter import SHORTFALL_TOL, SafetyFilter
 from mpclab.core.errors import ConfigError
 from mpclab.plants.zumo import Zumo
 
@@ -59,8 +59,8 @@ def test_the_nn_policy_runs_behind_the_filter_and_the_log_says_when(run_cfg) -> 
 
 
 def _nearest_by_loop(A, b, lb, ub):
-    """The nearest feasible ``d`` by trying every active set one at a time, and checking it
-    against scipy's SLSQP: the reference of the batched enumeration."""
+    """The nearest feasible ``d`` by trying every active set one at a time: the reference of
+    the batched enumeration."""
     from itertools import combinations
 
     nu = A.shape[1]
@@ -102,3 +102,21 @@ def test_the_batched_qp_is_the_nearest_feasible_input_of_every_active_set() -> N
         assert code == 1
         np.testing.assert_allclose(d, ref, rtol=0, atol=1e-9)
     assert checked > 100
+
+
+def test_the_filter_changes_the_input_that_collides_and_the_run_does_not(run_cfg) -> None:
+    """On a layout where the net alone touches a wall (zumo_random seed 2, at its fourth
+    step), the filter modifies inputs and the run keeps its distance; every applied input
+    keeps the condition on the model's next state, not linearized, to round-off, as the
+    summary counts."""
+    alone, _ = run_cfg(["+experiment=zumo_nn", "scenario=zumo_random", "seed=2"], name="a")
+    assert alone.summary["status"] == "collision"
+    res, _ = run_cfg(["+experiment=zumo_nn", "scenario=zumo_random", "seed=2",
+                      "+safety_filter=cbf"], name="b")
+    s = res.summary
+    assert s["status"] != "collision" and s["min_clearance_m"] > 0
+    assert s["safety_filter_modified"] > 0
+    short = res.steps["safety_filter_shortfall"].dropna()
+    assert s["safety_filter_shortfalls"] == int((short > SHORTFALL_TOL).sum())
+    assert short.max() < SHORTFALL_TOL  # inputs on the linearized boundary: round-off only
+    assert s["safety_filter_unkept"] == 0 and s["safety_filter_shortfalls"] == 0

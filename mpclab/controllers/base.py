@@ -179,8 +179,11 @@ class Controller(ABC):
                                "the solver returned non-finite values", res.iterations)
         res = res if res.ok else self._fallback(x, res)
         if self.safety_filter is not None:  # the backstop on what is applied
-            u, code = self.safety_filter.filter(x, res.u, ctx.detections)
-            res = replace(res, u=u, info={**res.info, "safety_filter": code})
+            sf = self.safety_filter
+            u, code = sf.filter(x, res.u, ctx.detections)
+            short = sf.shortfall(x, u, ctx.detections) if code else 0.0  # 0: checked exactly
+            res = replace(res, u=u, info={**res.info, "safety_filter": code,
+                                          "safety_filter_shortfall": short})
             self._plan = res if res.ok else replace(res)
         elif res.ok:
             self._plan = res

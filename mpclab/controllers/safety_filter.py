@@ -14,20 +14,29 @@ model step ahead and ``J = dp_1/du`` the plant's step Jacobian. The QP has as ma
 the plant has inputs; it is solved exactly by enumerating active sets of at most ``nu``
 constraints (every candidate feasible, the nearest taken). The step's ``info`` says whether
 the filter changed the input (``safety_filter``: 0 untouched, 1 modified, 2 no input kept
-the linearized condition: the one violating it least is applied).
+the linearized condition: the one violating it least is applied) and how far the applied
+input falls short of the condition on the model's next state, not linearized
+(``safety_filter_shortfall``, 0 where it holds; counted in the summary).
 """
 
 from __future__ import annotations
 
+from functools import cache
 from itertools import combinations
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from mpclab.config.registry import component
 from mpclab.core.errors import ConfigError, number
 
 FloatArray = np.ndarray
+#: the step log's columns of the filter: its code and the applied input's shortfall
+CODE, SHORTFALL = "safety_filter", "safety_filter_shortfall"
+#: a shortfall above this counts [m^2] (the condition's values are ~1e-3 m^2 near a point;
+#: an input placed on the linearized boundary falls short by round-off, ~1e-14)
+SHORTFALL_TOL = 1e-10
 
 
 @component("safety_filter", "cbf", injected=("plant",))
@@ -60,9 +69,40 @@ class SafetyFilter:
         self.dt = number(dt, "safety_filter.dt", above=0)
         self.iterations = int(number(iterations, "safety_filter.iterations", at_least=1))
         self._ip = [plant.state_index(s) for s in plant.position]
+        # the position one step ahead and its Jacobian in the input, one call (from the
+        # plant's step, derived from its rhs)
+        xs, us = ca.SX.sym("x", plant.nx), ca.SX.sym("u", plant.nu)
+        p1 = plant.F(xs, us, self.dt)[self._ip]
+        self._ahead = ca.Function("position_ahead", [xs, us], [p1, ca.jacobian(p1, us)])
 
-    def _p1(self, x: FloatArray, u: FloatArray) -> FloatArray:
-        return self.plant.step(x, u, self.dt)[self._ip]
+    def shortfall(self, x: FloatArray, u: FloatArray, points: FloatArray) -> float:
+        """How far the input ``u`` falls short of the CBF condition on the model's next
+        state, not linearized: ``max_i ((1 - gamma) h_i(p_0) - h_i(p_1(u)))``, 0 where it
+        holds [m^2]."""
+        q = np.asarray(points, float).reshape(-1, 2)
+        if len(q) == 0:
+            return 0.0
+        x = np.asarray(x, float)
+        p0, p1 = x[self._ip], self._p1_and_jacobian(x, np.asarray(u, float))[0]
+        R = np.minimum(self.distance, np.linalg.norm(q - p0, axis=1))
+        h0 = np.sum((p0 - q) ** 2, axis=1) - R**2
+        h1 = np.sum((p1 - q) ** 2, axis=1) - R**2
+        return float(max(np.max((1 - self.gamma) * h0 - h1), 0.0))
+
+    def metrics(self, steps: Any) -> dict[str, Any]:
+        """The run's filtered steps: modified (code 1), without an input that kept the
+        linearized condition (code 2), and whose applied input fell short of the condition
+        on the model's next state (``safety_filter_shortfall`` above :data:`SHORTFALL_TOL`)."""
+        codes = steps[CODE].dropna().astype(int) if CODE in steps else []
+        short = steps[SHORTFALL].dropna() if SHORTFALL in steps else []
+        return {"safety_filter_modified": int(sum(c == 1 for c in codes)),
+                "safety_filter_unkept": int(sum(c == 2 for c in codes)),
+                "safety_filter_shortfalls": int(sum(v > SHORTFALL_TOL for v in short))}
+
+    def _p1_and_jacobian(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The position one model step ahead ``(2,)`` and ``dp_1/du`` ``(2, nu)``."""
+        p1, J = self._ahead(x, u)
+        return np.asarray(p1, dtype=float).ravel(), np.asarray(J, dtype=float)
 
     def filter(self, x: FloatArray, u_nom: FloatArray, points: FloatArray,
                ) -> tuple[FloatArray, int]:
@@ -75,15 +115,16 @@ class SafetyFilter:
         p0 = x[self._ip]
         R = np.minimum(self.distance, np.linalg.norm(q - p0, axis=1))
         h = lambda p: np.sum((p - q) ** 2, axis=1) - R**2  # noqa: E731
-        if np.all(h(self._p1(x, u_nom)) >= (1 - self.gamma) * h(p0)):
+        p1, J = self._p1_and_jacobian(x, u_nom)
+        if np.all(h(p1) >= (1 - self.gamma) * h(p0)):
             return u_nom, 0
         nu = len(u_nom)
         lb, ub = self.plant.u_lb - u_nom, self.plant.u_ub - u_nom
         d, code = np.zeros(nu), 2
-        for _ in range(self.iterations):  # linearized at the last answer, from u_nom
-            u_lin = u_nom + d
-            p1 = self._p1(x, u_lin)
-            A = 2 * (p1 - q) @ self._jacobian(x, u_lin)          # (n, nu)
+        for k in range(self.iterations):  # linearized at the last answer, from u_nom
+            if k:
+                p1, J = self._p1_and_jacobian(x, u_nom + d)
+            A = 2 * (p1 - q) @ J                                 # (n, nu)
             b = (1 - self.gamma) * h(p0) - h(p1) + A @ d         # A du >= b
             new, code = self._qp(A, b, lb, ub)
             done = float(np.max(np.abs(new - d))) < 1e-6
@@ -91,11 +132,6 @@ class SafetyFilter:
             if done:
                 break
         return u_nom + d, code
-
-    def _jacobian(self, x: FloatArray, u: FloatArray) -> FloatArray:
-        """``dp_1/du`` ``(2, nu)``: the position rows of the plant's step Jacobian (derived
-        from its ``rhs``)."""
-        return self.plant.jacobians(x, u, self.dt)[1][self._ip]
 
     @staticmethod
     def _qp(A: FloatArray, b: FloatArray, lb: FloatArray, ub: FloatArray,
@@ -111,7 +147,7 @@ class SafetyFilter:
         br = np.concatenate([b[near], lb[lower], -ub[upper]])
         candidates = [np.zeros((1, nu))]                        # the empty set first
         for size in range(1, min(nu, len(br)) + 1):
-            S = np.array(list(combinations(range(len(br)), size)), dtype=int)
+            S = _sets(len(br), size)
             AS = Ar[S]                                          # (sets, size, nu)
             G = AS @ AS.transpose(0, 2, 1)
             scale = np.prod(np.diagonal(G, axis1=1, axis2=2), axis=1)
@@ -129,3 +165,9 @@ class SafetyFilter:
         if not within.any():
             return np.zeros(nu), 2
         return D[np.flatnonzero(within)[np.argmin(viol[within])]], 2
+
+
+@cache
+def _sets(n: int, size: int) -> np.ndarray:
+    """Every set of ``size`` of ``n`` rows ``(sets, size)``, in ``combinations``' order."""
+    return np.array(list(combinations(range(n), size)), dtype=int).reshape(-1, size)

@@ -104,8 +104,9 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
     # the input filter (+safety_filter=cbf), set on every run: a reused controller too
     sf = cfg.get("safety_filter")
     controller.safety_filter = build(sf, "safety_filter", plant=plant) if sf else None
-    cols = tuple(c for c in controller.log_columns if c != "safety_filter")
-    controller.log_columns = (*cols, "safety_filter") if sf else cols
+    filter_cols = ("safety_filter", "safety_filter_shortfall")
+    cols = tuple(c for c in controller.log_columns if c not in filter_cols)
+    controller.log_columns = (*cols, *filter_cols) if sf else cols
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
     return Run(plant, controller, scenario, supervisor, recorder, world)
 
@@ -148,6 +149,8 @@ def run_experiment(
         **result.summary,
         **run.scenario.metrics(result.steps, result.summary),
         **run.controller.metrics(result.steps),
+        **(run.controller.safety_filter.metrics(result.steps)
+           if run.controller.safety_filter is not None else {}),
         **(run.controller.blocking.summary() if run.controller.blocking else {}),
         PROBLEM_KEY: getattr(run.controller.solved_problem, "value", None),
         "versions": record.versions(),
