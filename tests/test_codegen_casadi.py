@@ -89,3 +89,28 @@ def test_codegen_needs_the_sqp_solver() -> None:
     with pytest.raises(ConfigError, match="solver=sqp or fatrop"):
         build_run(compose(["+experiment=zumo_bug2", "recorder=none", "controller.solver=ipopt",
                            "controller.codegen=true"]))
+
+
+def test_two_controllers_of_one_generated_library_each_have_memory() -> None:
+    """The same generated solver built twice in one process loads one library, whose static
+    memory pool CasADi sizes at one object unless told: each controller's buffer checks out
+    its own (the library is compiled with room for MEMORY_SLOTS), and both solve alike."""
+    import ctypes
+
+    from mpclab.controllers.casadi.codegen import MEMORY_SLOTS
+
+    runs = [build_run(compose([*CAR, "controller.codegen=true"])) for _ in range(2)]
+    gens = [r.controller._full.generated for r in runs]
+    assert gens[0].library == gens[1].library  # one cached library, loaded once
+    exported = [f"{n}_max_num_threads" for n in ("mpc", "nlp")]
+    lib = ctypes.CDLL(str(gens[0].library))
+    counts = [getattr(lib, n)() for n in exported if hasattr(lib, n)]
+    assert counts and all(c == MEMORY_SLOTS for c in counts)
+    scen = runs[0].scenario
+    steps = []
+    for run in runs:  # both alive at once
+        c = run.controller
+        ctx = StepContext(goal=scen.goal, target=scen.target(0.0, c.horizon, c.dt))
+        steps.append(c.step(0.0, scen.x0, ctx))
+    assert [s.status for s in steps] == [SolveStatus.converged] * 2
+    np.testing.assert_allclose(steps[0].u, steps[1].u, rtol=0, atol=1e-9)

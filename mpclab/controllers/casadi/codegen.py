@@ -59,6 +59,10 @@ class _Stats:
         return self._stats
 
 
+#: the generated solver's memory objects, one per controller alive in a process at once
+MEMORY_SLOTS = 64
+
+
 class GeneratedSolver:
     """``solver`` (a symbolic ``nlpsol``) as compiled generated C, with its status.
 
@@ -82,6 +86,11 @@ class GeneratedSolver:
             raise ConfigError(f"controller.codegen=true: CasADi cannot generate this solver "
                               f"as C ({str(exc).strip().splitlines()[-1][:200]})") from None
         self.fatrop = "casadi_fatrop_solve" in source
+        # CasADi's generated functions keep their memory in a static pool of
+        # CASADI_MAX_NUM_THREADS (1 unless defined): a second controller of the same library
+        # in one process (a sweep's warm worker, a test) would check out memory -1 and index
+        # the pool out of bounds; room for as many as a process builds
+        flags = (*flags, f"-DCASADI_MAX_NUM_THREADS={MEMORY_SLOTS}")
         libs: tuple[str, ...] = ()
         if self.fatrop:
             if _ENTRY not in source:
