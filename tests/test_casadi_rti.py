@@ -97,7 +97,7 @@ def test_every_parameter_of_the_sample_enters_at_feedback(shooting) -> None:
     direct = rti.feedback(rti.prepare(w0, p), p)
     np.testing.assert_array_equal(fed.p, p)
     lin = rti._lin(w0, p)
-    for got, want in ((fed.g, lin[1]), (fed.c, lin[2]), (fed.a, lin[3].nonzeros())):
+    for got, want in ((fed.g, lin[0]), (fed.c, lin[1]), (fed.a, lin[2].nonzeros())):
         np.testing.assert_allclose(got, np.ravel(want), rtol=0, atol=1e-12)
     np.testing.assert_allclose(fed.g, direct.g, rtol=0, atol=1e-12)
 

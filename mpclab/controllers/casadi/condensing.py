@@ -23,7 +23,6 @@ rows come back from the stationarity of the Lagrangian in ``d_D``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -183,6 +182,3 @@ class Condenser:
         rest = (el.H @ step.d + step.c + self._j_o.T @ lam_g[O])[D] + lam_x[D]
         lam_g[R] = -el.E_inv.T @ rest
         return lam_x, lam_g
-
-    def stats(self) -> dict[str, Any]:
-        return dict(self._buf.stats())

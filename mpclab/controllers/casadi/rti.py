@@ -81,7 +81,6 @@ class Prepared:
 
     owner: RealTimeIteration
     w: FloatArray        # the linearization point
-    p: FloatArray        # the parameters predicted for it
     h: FloatArray        # the convexified Hessian's nonzeros (the QP's pattern)
     lam_x0: FloatArray   # the QP's multiplier guesses
     lam_a0: FloatArray
@@ -103,7 +102,6 @@ class RtiResult:
     g: FloatArray        # the constraints at the linearization point
     c: FloatArray        # the cost's gradient there
     a: FloatArray        # the constraints' Jacobian there (its nonzeros)
-    f: float             # the cost there
     condensed: CondensedStep | None = None  # the condensed QP's step, to complete
 
 
@@ -131,8 +129,8 @@ class RealTimeIteration:
         lagrangian = f + ca.dot(lam, g) if hessian is RtiHessian.exact else f
         H, _ = ca.hessian(lagrangian, w)
         J = ca.jacobian(g, w)
-        self._lin = ca.Function("rti_linearization", [w, p], [f, g, ca.gradient(f, w), J],
-                                ["w", "p"], ["f", "g", "grad", "J"])
+        self._lin = ca.Function("rti_linearization", [w, p], [g, ca.gradient(f, w), J],
+                                ["w", "p"], ["g", "grad", "J"])
         self._hess = ca.Function("rti_hessian", [w, p, lam], [H], ["w", "p", "lam_g"], ["H"])
         self._cost = ca.Function("rti_cost", [w, p], [f])
         n = int(w.shape[0])
@@ -199,7 +197,7 @@ class RealTimeIteration:
             self._lin_go()
             elimination = self._condenser.eliminate(lin["J"], self._dense_h)
         return Prepared(
-            self, np.array(w, dtype=float), np.array(p, dtype=float), h,
+            self, np.array(w, dtype=float), h,
             np.zeros(w.size) if lam_x is None else np.array(lam_x, dtype=float),
             np.zeros(ng) if lam_g is None else np.array(lam_g, dtype=float)[self._order],
             elimination)
@@ -232,7 +230,7 @@ class RealTimeIteration:
                                          ocp.ubg - g, ocp.lbw - prep.w, ocp.ubw - prep.w)
             return RtiResult(prep.w + step.d, None, None, np.array(p, dtype=float),
                              sqp_step(step.status), step.raw, g.copy(), lin["grad"].copy(),
-                             lin["J"].copy(), float(lin["f"][0]), condensed=step)
+                             lin["J"].copy(), condensed=step)
         qp["h"][:], qp["a"][:], qp["g"][:] = prep.h, lin["J"][self._a_from_j], lin["grad"]
         qp["lba"][:], qp["uba"][:] = (ocp.lbg - g)[order], (ocp.ubg - g)[order]
         qp["lbx"][:], qp["ubx"][:] = ocp.lbw - prep.w, ocp.ubw - prep.w
@@ -245,8 +243,7 @@ class RealTimeIteration:
         lam_g = np.empty(order.size)
         lam_g[order] = qp["lam_a"]
         return RtiResult(prep.w + qp["x"], qp["lam_x"].copy(), lam_g, np.array(p, dtype=float),
-                         status, raw, g.copy(), lin["grad"].copy(), lin["J"].copy(),
-                         float(lin["f"][0]))
+                         status, raw, g.copy(), lin["grad"].copy(), lin["J"].copy())
 
     def complete(self, prep: Prepared, sol: RtiResult) -> None:
         """The full QP's multipliers of a condensed step (after the input is out)."""
