@@ -130,7 +130,7 @@ def test_collision_constraint_keeps_predicted_positions_off_detected_points(solv
     x, point = np.array([0.4, 0.8, -np.pi / 2]), np.array([0.4, 0.7])
     kw = {"solver": solver, "shooting": "single", "sqp_iterations": 20}
     free = _zumo({"J1": GoalAttraction()}, **kw).step(0.0, x, _ctx(None, point[None]))
-    con = ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0, sample_error=0, noise=0)
+    con = ObstacleDistance(mode="hard", distance=0.06)
     hard = CasadiMPC(Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]}),
                      Objective({"J1": GoalAttraction()}, {"obstacles": con}),
                      **grouped(CasadiMPC, horizon=8, dt=0.2,

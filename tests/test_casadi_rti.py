@@ -37,8 +37,7 @@ def _zumo(shooting: str = "single", qp_solver: str = "qpoases", solver: str = "s
     terms = {"J1": GoalAttraction(),
              "J2": QuadraticTracking(input_weights={"u1": 0.01, "u2": 0.01}),
              "J4": ObstacleRepulsion(C3=1500, L3=0.05)}
-    hard = ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0, sample_error=0,
-                            noise=0)
+    hard = ObstacleDistance(mode="hard", distance=0.06)
     return CasadiMPC(Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]}),
                      Objective(terms, {"obstacles": hard}), **grouped(CasadiMPC, horizon=8, dt=0.2,
                      initial_input={"u1": 2.0, "u2": 2.0}, solver=solver, shooting=shooting,

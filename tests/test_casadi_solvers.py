@@ -224,8 +224,7 @@ def test_fatrop_takes_the_collision_constraint_and_agrees_with_ipopt(zumo_setup)
     # the stage-wise constraint order lets fatrop detect the structure with path constraints
     x, det, active = STATES[0]
     kw = {"tol": 1e-8, "max_iter": 500}
-    con = {"obstacles": ObstacleDistance(mode="hard", robot_radius=0.06, ray_error=0,
-                                         sample_error=0, noise=0)}
+    con = {"obstacles": ObstacleDistance(mode="hard", distance=0.06)}
     a = _mpc(zumo_setup, solver="ipopt", constraints=con, **kw).step(0.0, x, _ctx(det, active))
     b = _mpc(zumo_setup, solver="fatrop", constraints=con, **kw).step(0.0, x, _ctx(det, active))
     assert a.status is b.status is SolveStatus.converged

@@ -24,8 +24,7 @@ POINT = np.array([0.41, 0.7])          # on the straight way to the goal
 
 
 def _con(mode: str, **kw) -> ObstacleDistance:
-    return ObstacleDistance(mode=mode, robot_radius=0.06, ray_error=0.0, sample_error=0.0,
-                            noise=0.0, **kw)
+    return ObstacleDistance(mode=mode, distance=0.06, **kw)
 
 
 def _mpc(cons: dict, **kw) -> CasadiMPC:
@@ -45,13 +44,18 @@ def _dist(step, point=POINT) -> np.ndarray:
     return np.hypot(*(step.x_pred[1:, :2] - point).T)
 
 
-def test_margin_budget_totals_and_is_recorded() -> None:
-    c = ObstacleDistance(robot_radius=0.05, ray_error=0.012, sample_error=0.002, noise=0.001)
+def test_a_stated_distance_is_kept_and_recorded() -> None:
+    c = ObstacleDistance(distance=0.065)
     assert c.distance == pytest.approx(0.065)
     mpc = _mpc({"obstacles": c}, solver="ipopt")
     info = mpc.metrics(None)["constraints"]["obstacles"]
     assert info["mode"] == "soft" and info["distance_m"] == pytest.approx(0.065)
-    assert info["ray_error"] == pytest.approx(0.012)
+    assert info["margin"] == "stated"
+
+
+def test_an_underived_margin_is_named() -> None:
+    with pytest.raises(ConfigError, match="distance=<metres>"):
+        _ = ObstacleDistance().distance
 
 
 @pytest.mark.parametrize("solver", ["ipopt", "fatrop", "sqp"])

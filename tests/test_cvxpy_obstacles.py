@@ -32,7 +32,7 @@ def _objective(mode: str | None, **kw) -> Objective:
                                         input_weights={"u1": 0.01, "u2": 0.01}),
              "dU": InputRate(weights={"u1": 0.1, "u2": 0.1})}
     cons = {} if mode is None else {"o": ObstacleDistance(
-        mode=mode, robot_radius=R, ray_error=0.0, sample_error=0.0, noise=0.0, **kw)}
+        mode=mode, distance=R, **kw)}
     return Objective(terms, cons)
 
 

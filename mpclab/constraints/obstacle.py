@@ -2,8 +2,11 @@
 inside the sensed region).
 
 :class:`ObstacleDistance` keeps every predicted position ``p_{k+1}`` (``k = 0..T-1``) at least
-``R`` from every detected point ``p_i``, ``R`` the total of a margin budget (robot radius +
-ray error + inter-sample error + noise). Its rows, scaled to metres near the boundary::
+``R`` from every detected point ``p_i``, ``R`` the margin: by default derived at build time
+from the bounds the world states (the robot's radius, the rays' geometric error, the motion
+between samples, noise, latency, model mismatch: :mod:`mpclab.world.margin`, each part in
+``summary.json``'s ``margin``), or ``distance`` stated by hand. Its rows, scaled to metres
+near the boundary::
 
     g_i(p) = (R_i^2 - |p - p_i|^2) / (2 R)          (<= 0: at least R_i away)
 
@@ -61,6 +64,13 @@ class ObstacleMode(StrEnum):
     cbf = "cbf"
 
 
+class NoRoom(StrEnum):
+    """What a run does whose derived margin leaves no way from the start to the goal."""
+
+    refuse = "refuse"  # a ConfigError with the margin's parts (nothing runs)
+    run = "run"        # run anyway (to see what happens), with a warning
+
+
 class _Positions(Constraint):
     def bind(self, plant: Any) -> None:
         self._ix, self._iy = (plant.state_index(s) for s in plant.position)
@@ -82,10 +92,12 @@ class ObstacleDistance(_Positions):
     ----------
     mode
         ``hard``, ``soft`` or ``cbf`` (module docstring).
-    robot_radius, ray_error, sample_error, noise
-        The margin budget [m]; the distance kept is their total: the robot's radius, how far
-        a detected point may lie beyond the true surface (oblique incidence), what sampling
-        hides between two samples, and position noise.
+    distance
+        The distance kept [m]; None (the default): derived from the world's stated bounds
+        when the run is built (:meth:`keep`).
+    no_room
+        ``refuse`` (default) or ``run``: what a run does whose derived margin leaves no way
+        from the start to the goal.
     penalty
         ``soft``: weight of the slack (per metre of violation, per stage).
     gamma
@@ -95,26 +107,44 @@ class ObstacleDistance(_Positions):
     def __init__(
         self,
         mode: ObstacleMode | str = ObstacleMode.soft,
-        robot_radius: float = 0.05,
-        ray_error: float = 0.012,
-        sample_error: float = 0.002,
-        noise: float = 0.001,
+        distance: float | None = None,
+        no_room: NoRoom | str = NoRoom.refuse,
         penalty: float = 1.0e6,
         gamma: float = 0.5,
     ) -> None:
         self.mode = parse_choice(ObstacleMode, mode, "mode")
-        self.budget = {k: number(v, k, at_least=0) for k, v in {
-            "robot_radius": robot_radius, "ray_error": ray_error,
-            "sample_error": sample_error, "noise": noise}.items()}
-        self.distance = number(sum(self.budget.values()),
-                               "the margin total (robot_radius + ray_error + sample_error + noise)",
-                               above=0)
+        self.stated = distance is not None
+        self._distance = None if distance is None else number(distance, "distance", above=0)
+        #: the derived margin's parts (:meth:`keep`), None while stated or not yet derived
+        self.budget: Any = None
+        self.no_room = parse_choice(NoRoom, no_room, "no_room")
         self.penalty = number(penalty, "penalty", above=0)
         self.gamma = number(gamma, "gamma", above=0)
         if self.gamma > 1:
             raise ConfigError(f"gamma must be in (0, 1], got {gamma}")
         self.soft = self.mode is ObstacleMode.soft
         self.couples_stages = self.mode is ObstacleMode.cbf
+
+    @property
+    def distance(self) -> float:
+        """``R`` [m]: stated, or derived when the run was built."""
+        if self._distance is None:
+            raise ConfigError(
+                f"objective.constraints.{self.name}: the margin is derived when a run is built "
+                "(mpclab.runner.single_run.build_run) and this one was not; state it with "
+                f"objective.constraints.{self.name}.distance=<metres>")
+        return self._distance
+
+    @property
+    def known_distance(self) -> float | None:
+        """``R`` [m] if stated or derived yet, else None."""
+        return self._distance
+
+    def keep(self, budget: Any) -> None:
+        """Keep the derived margin ``budget`` (a :class:`mpclab.world.margin.MarginBudget`)
+        unless a distance was stated."""
+        if not self.stated:
+            self.budget, self._distance = budget, budget.total
 
     def declare(self, params: Any, n_points: int) -> dict[str, Any]:
         return {"radius": params.add(f"{self.name}_radius", n_points)}
@@ -197,7 +227,8 @@ class ObstacleDistance(_Positions):
 
     def info(self) -> dict[str, Any]:
         out: dict[str, Any] = {"type": type(self).__name__, "mode": self.mode.value,
-                               "distance_m": self.distance, **self.budget}
+                               "distance_m": self.distance,
+                               "margin": "stated" if self.stated else "derived"}
         if self.soft:
             out["penalty"] = self.penalty
         if self.mode is ObstacleMode.cbf:

@@ -48,7 +48,8 @@ class SafetyFilter:
     plant
         Injected; its ``position`` labels locate the robot, its ``step`` predicts.
     distance
-        ``R`` [m] kept from every detected point.
+        ``R`` [m] kept from every detected point; None (the default): the run's obstacle
+        margin, derived from the world's stated bounds (:mod:`mpclab.world.margin`).
     gamma
         The barrier's decay rate per step, ``0 < gamma <= 1``.
     dt
@@ -59,10 +60,12 @@ class SafetyFilter:
         position affine in the input, and the answer approaches the nearest input.
     """
 
-    def __init__(self, plant: Any, distance: float = 0.065, gamma: float = 0.5,
+    def __init__(self, plant: Any, distance: float | None = None, gamma: float = 0.5,
                  dt: float = 0.2, iterations: int = 5) -> None:
         self.plant = plant
-        self.distance = number(distance, "safety_filter.distance", above=0)
+        self.stated = distance is not None
+        self._distance = None if distance is None else number(
+            distance, "safety_filter.distance", above=0)
         self.gamma = number(gamma, "safety_filter.gamma", above=0)
         if self.gamma > 1:
             raise ConfigError(f"safety_filter.gamma must be in (0, 1], got {gamma}")
@@ -74,6 +77,21 @@ class SafetyFilter:
         xs, us = ca.SX.sym("x", plant.nx), ca.SX.sym("u", plant.nu)
         p1 = plant.F(xs, us, self.dt)[self._ip]
         self._ahead = ca.Function("position_ahead", [xs, us], [p1, ca.jacobian(p1, us)])
+
+    @property
+    def distance(self) -> float:
+        """The distance kept [m]: stated, or the run's derived obstacle margin."""
+        if self._distance is None:
+            raise ConfigError("safety_filter.distance: derived from the scenario's obstacle "
+                              "margin, and this run has none (a scenario without a range "
+                              "sensor); state it with safety_filter.distance=<metres>")
+        return self._distance
+
+    def keep(self, budget: Any) -> None:
+        """Keep the run's derived margin (a :class:`mpclab.world.margin.MarginBudget`)
+        unless a distance was stated."""
+        if not self.stated:
+            self._distance = budget.total
 
     def shortfall(self, x: FloatArray, u: FloatArray, points: FloatArray) -> float:
         """How far the input ``u`` falls short of the CBF condition on the model's next

@@ -25,6 +25,7 @@ from mpclab.record import files as record
 from mpclab.recorders.base import Recorder
 from mpclab.supervisors.base import NoSupervisor, Supervisor
 from mpclab.world.clearance import ContinuousClearance
+from mpclab.world.margin import MarginBudget
 from mpclab.world.scenario import Scenario
 from mpclab.world.sim_world import SimWorld, Timing
 
@@ -62,6 +63,10 @@ class Run:
     supervisor: Supervisor = field(default_factory=NoSupervisor)
     recorder: Recorder = field(default_factory=Recorder)
     world: SimWorld | None = None  # None: the ideal loop (sim=nominal)
+    #: the obstacle margin kept (mpclab.world.margin), None where nothing keeps one
+    margin: MarginBudget | None = None
+    #: why the margin left no way to the goal, for a run made anyway (no_room=run)
+    no_room: str | None = None
 
 
 @dataclass

@@ -14,12 +14,15 @@ from mpclab.config.allowed_targets import check_config
 from mpclab.config.instantiate import build
 from mpclab.config.key_origin import RunOrigin, where_set
 from mpclab.config.root import CONF_DIR
+from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.core.errors import ConfigError, number
 from mpclab.core.status import PROBLEM_KEY
 from mpclab.record import files as record
 from mpclab.runner.component_cache import ComponentCache
 from mpclab.runner.loop import Run, RunInterrupted, RunResult, simulate
 from mpclab.runner.progress import RunProgress
+from mpclab.world import margin
+from mpclab.world.zumo_world import ObstacleScenario
 
 
 def compose(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> DictConfig:
@@ -86,29 +89,44 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
     if cfg.seed < 0:
         raise ConfigError(f"seed: expected an integer >= 0, got {cfg.seed}")
     rng = np.random.default_rng(cfg.seed)
-    reused = cache.lookup(cfg) if cache is not None else None
-    if reused is not None:
-        plant, objective, controller = reused
-    else:
-        plant = build(cfg.plant, "plant")
-        objective = build(cfg.objective, "objective")
+    dt = number(cfg.controller.dt, "controller.dt", above=0)
+    plant = (cache.plant(cfg) if cache is not None else None) or build(cfg.plant, "plant")
     scenario = build(cfg.scenario, "scenario", plant=plant, rng=rng)
+    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed), dt=dt)
+    # the obstacle margin from the world's stated bounds, before the controller that keeps it
+    budget = (margin.derive(plant, scenario, world, dt)
+              if isinstance(scenario, ObstacleScenario) else None)
+    reused = cache.lookup(cfg, budget) if cache is not None else None
+    if reused is not None:
+        objective, controller = reused
+    else:
+        objective = build(cfg.objective, "objective")
+    obstacles = [c for c in objective.constraints.values() if isinstance(c, ObstacleDistance)]
+    no_room = None
+    for con in obstacles:
+        if budget is not None:
+            con.keep(budget)
+            no_room = margin.check_room(scenario, con.distance, con.budget, con.no_room,
+                                        int(cfg.seed))
+    if no_room:
+        print(f"warning: {no_room}", file=sys.stderr)
     supervisor = build(cfg.supervisor, "supervisor", plant=plant, objective=objective)
-    world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed),
-                  dt=number(cfg.controller.dt, "controller.dt", above=0))
     if reused is None:
         controller = build(cfg.controller, "controller", plant=plant, objective=objective,
                            scenario=scenario)
         if cache is not None:
-            cache.store(cfg, (plant, objective, controller))
+            cache.store(cfg, budget, plant, (objective, controller))
     # the input filter (+safety_filter=cbf), set on every run: a reused controller too
     sf = cfg.get("safety_filter")
     controller.safety_filter = build(sf, "safety_filter", plant=plant) if sf else None
+    if controller.safety_filter is not None and budget is not None:
+        controller.safety_filter.keep(budget)
     filter_cols = ("safety_filter", "safety_filter_shortfall")
     cols = tuple(c for c in controller.log_columns if c not in filter_cols)
     controller.log_columns = (*cols, *filter_cols) if sf else cols
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
-    return Run(plant, controller, scenario, supervisor, recorder, world)
+    kept = budget if obstacles or controller.safety_filter is not None else None
+    return Run(plant, controller, scenario, supervisor, recorder, world, kept, no_room)
 
 
 def run_experiment(
@@ -153,6 +171,9 @@ def run_experiment(
            if run.controller.safety_filter is not None else {}),
         **(run.controller.blocking.summary() if run.controller.blocking else {}),
         PROBLEM_KEY: getattr(run.controller.solved_problem, "value", None),
+        # the obstacle margin's parts (mpclab.world.margin), and why there was no room
+        "margin": run.margin.describe() if run.margin is not None else None,
+        "margin_no_room": run.no_room,
         "versions": record.versions(),
     }
     result.summary["timing"] = {"build_s": t1 - t0, "simulate_s": t2 - t1}

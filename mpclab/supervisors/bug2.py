@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from mpclab.config.registry import component
+from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.core.errors import number, parse_choice
 from mpclab.core.options import group
 from mpclab.objectives.base import Objective
@@ -91,7 +92,12 @@ class BoundaryFollowing:
         nearer tangent point (:class:`SideRule`).
     run_link
         Detected points nearer than this to each other belong to one obstacle [m]; None:
-        twice ``clearance`` (a gap the path along a boundary cannot pass).
+        twice ``clearance`` as stated (a gap the path along a boundary cannot pass; a
+        clearance raised by ``outside_margin`` leaves it: the robot still fits through).
+    outside_margin
+        The path runs at least this far outside the distance the objective's obstacle
+        constraint keeps [m]: where that margin (derived from the world's bounds) comes
+        nearer ``clearance``, both clearances are raised by the difference.
     """
 
     path_speed: float = 0.0
@@ -99,6 +105,7 @@ class BoundaryFollowing:
     least_clearance: float = 0.07
     side: SideRule | str = SideRule.right
     run_link: float | None = None
+    outside_margin: float = 0.015
 
 
 @dataclass(frozen=True)
@@ -177,6 +184,12 @@ class Bug2(Supervisor):
                                       above=0)
         self.run_link = (2 * self.clearance if b.run_link is None
                          else number(b.run_link, "supervisor.boundary.run_link", above=0))
+        outside = number(b.outside_margin, "supervisor.boundary.outside_margin", at_least=0)
+        kept = [c.known_distance for c in (objective.constraints.values() if objective else ())
+                if isinstance(c, ObstacleDistance) and c.known_distance is not None]
+        raise_by = max([0.0, *(d + outside - self.clearance for d in kept)])
+        self.clearance += raise_by
+        self.least_clearance += raise_by
         self.side_rule = parse_choice(SideRule, b.side, "supervisor.boundary.side")
         #: the side followed now (chosen at each hit under ``side=shorter``)
         self.side = Side.left if self.side_rule is SideRule.left else Side.right

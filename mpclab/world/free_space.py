@@ -45,6 +45,22 @@ def free_cells(
     return free, xs, ys
 
 
+def reachable(free: npt.NDArray[np.bool_], seeds: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """The free cells 4-connected to a free cell of ``seeds`` (numpy alone: no scipy
+    import for a run that draws no random layout)."""
+    reach = free & seeds
+    while True:
+        grown = reach.copy()
+        grown[1:] |= reach[:-1]
+        grown[:-1] |= reach[1:]
+        grown[:, 1:] |= reach[:, :-1]
+        grown[:, :-1] |= reach[:, 1:]
+        grown &= free
+        if np.array_equal(grown, reach):
+            return reach
+        reach = grown
+
+
 def connected(
     discs: FloatArray, start: Sequence[float], goal: Sequence[float], robot_radius: float,
     extent: Sequence[float], cell: float = 0.005, margin: float | None = None,

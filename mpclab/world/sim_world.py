@@ -28,7 +28,9 @@ instant the state was measured, and the simulator integrates the controller's ow
 * **measurement noise** (``noise.state_std.<label>``, or ``.position`` and ``.heading`` for
   any plant's, ``noise.range_std``): the controller
   and the supervisor see a noisy state; range readings are taken from the true pose, get
-  noise, and become obstacle points placed from the *measured* pose.
+  noise, and become obstacle points placed from the *measured* pose. The obstacle margin
+  covers the range noise at the one-sided quantile ``noise.confidence`` (default 0.95;
+  :mod:`mpclab.world.margin`).
 * **process disturbance** (``disturbance.state_std.<label>``, per square-root second): a
   random walk added to the true state, ``N(0, std^2 dt)`` per control period.
 * **model mismatch** (``plant_params.<name>``, ``substeps``): the simulated plant has other
@@ -77,6 +79,7 @@ _ODOMETRY_STREAM = 9
 class NoiseConf:
     state_std: dict[str, float] = field(default_factory=dict)
     range_std: float = 0.0
+    confidence: float = 0.95   # the obstacle margin covers the noise at this quantile
 
 
 @dataclass
@@ -196,7 +199,8 @@ class SimWorld:
         :class:`LoopTiming`: the latency's scale and profile, the deadline and its policy,
         delay compensation.
     noise
-        ``{state_std: {label: std}, range_std}``: measurement noise.
+        ``{state_std: {label: std}, range_std, confidence}``: measurement noise, and the
+        quantile the obstacle margin covers it at.
     disturbance
         ``{state_std: {label: std}}``: a random walk on the true state, per square-root
         second.
@@ -254,6 +258,11 @@ class SimWorld:
         check_keys(noise, [f.name for f in dataclasses.fields(NoiseConf)], "sim.noise")
         self.state_std = state_stds(plant, noise.get("state_std") or {}, "sim.noise.state_std")
         self.range_std = _nonneg(noise.get("range_std", 0.0), "sim.noise.range_std")
+        self.confidence = number(noise.get("confidence", NoiseConf.confidence),
+                                 "sim.noise.confidence", above=0)
+        if self.confidence >= 1:
+            raise ConfigError(f"sim.noise.confidence: expected a probability in (0, 1), got "
+                              f"{self.confidence:g}")
         disturbance = dict(disturbance or {})
         check_keys(disturbance, ["state_std"], "sim.disturbance")
         self.walk_std = state_stds(plant, disturbance.get("state_std") or {},

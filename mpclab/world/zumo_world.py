@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -11,6 +12,7 @@ import numpy as np
 from mpclab.config.registry import component
 from mpclab.core.errors import ConfigError, check_keys, number
 from mpclab.plants.base import Plant
+from mpclab.world.free_space import free_cells, reachable
 from mpclab.world.obstacles import WallConf, obstacle_discs
 from mpclab.world.random_layout import RandomLayoutConf, random_layout
 from mpclab.world.scenario import FloatArray, Scenario, ScenarioConf
@@ -62,6 +64,17 @@ def _draws_anything(random: Mapping[str, Any]) -> bool:
     """Whether a ``random`` section places any obstacle."""
     return any(float(random.get(key, 0) or 0) > 0
                for key in ("n_walls", "n_discs", "goal_wall", "corridor"))
+
+
+def _random_radii(random: Mapping[str, Any], obstacle_radius: float) -> set[float]:
+    """The disc radii a random layout may draw: its walls' and its isolated discs'."""
+    out = set()
+    if any(float(random.get(k, 0) or 0) > 0 for k in ("n_walls", "goal_wall", "corridor")):
+        out.add(obstacle_radius)
+    if float(random.get("n_discs", 0) or 0) > 0:
+        lo, hi = (float(v) for v in random.get("disc_radius", RandomLayoutConf().disc_radius))
+        out |= {float(r) for r in np.linspace(lo, hi, 4)}
+    return out
 
 
 @component("scenario", "obstacles", ObstacleScenarioConf)
@@ -123,6 +136,7 @@ class ObstacleScenario(Scenario):
         walls = where.get("walls") or ()
         spacing = min((float(w.get("spacing", 0.05)) for w in walls), default=0.05)
         obs = obstacle_discs(where.get("discs") or (), walls, obstacle_radius)
+        radii = {float(r) for r in obs[:, 2]}
         self.extent = [float(v) for v in where.get("extent", LayoutConf().extent)]
         random = where.get("random")
         if random is not None and _draws_anything(random):
@@ -134,6 +148,8 @@ class ObstacleScenario(Scenario):
                 robot_radius=self.robot_radius, extent=self.extent, fixed=obs,
             )
             obs = np.concatenate([obs, extra], axis=0)
+            radii |= _random_radii(random, float(obstacle_radius))
+        self._radii = tuple(sorted(radii))
         #: obstacle discs (n, 3): centre x, centre y, radius [m]
         self.obstacles = obs
         self.sensor = RangeSensor(**dict(sensor or {}))
@@ -184,6 +200,29 @@ class ObstacleScenario(Scenario):
                 return x0
         raise ConfigError(f"scenario {self.name!r}: no start in {region} keeps {clearance} m "
                           "from the obstacles")
+
+    def stated_obstacle_radii(self) -> tuple[float, ...]:
+        """The radii of the discs the layout states it may hold: its discs' and walls', and
+        for random ones the walls' and isolated discs' (their range at four points), whatever
+        this seed drew (the obstacle margin is derived from them: :mod:`mpclab.world.margin`)."""
+        return self._radii
+
+    def way_to_goal(self, keep: float, cell: float = 0.0025) -> bool:
+        """Whether the robot's centre can go from the start to within the arrival radius of
+        the goal keeping ``keep`` from every obstacle's surface, on a grid of ``cell`` (a
+        passage is found from ``2 keep + cell`` wide; a start nearer than ``keep`` to an
+        obstacle may first move away by up to ``keep``). True where the arrival rule weighs
+        no position."""
+        w = np.array([self._arrival_w[i] for i in self._ip])
+        if not (w > 0).any():
+            return True
+        arrival = math.sqrt(self.arrival_threshold / float(w.max()))
+        free, xs, ys = free_cells(self.obstacles, self.extent, keep, cell)
+        gx, gy = np.meshgrid(xs, ys)
+        (sx, sy), (ex, ey) = self.x0[self._ip], self.goal[self._ip]
+        start = np.hypot(gx - sx, gy - sy) <= keep + cell
+        goal = np.hypot(gx - ex, gy - ey) <= arrival
+        return bool((reachable(free, start) & goal).any())
 
     # ---------------------------------------------------------------- world hooks
     def pose(self, x: FloatArray) -> FloatArray:
