@@ -94,7 +94,9 @@ def simulate(run: Run, progress: Callable[[float, float], None] | None = None) -
     world.reset(plant.nu)
     x = scen.x0.copy()  # the true state
     ctrl.reset(x)
-    sup.reset(x, scen.goal, scen.arrived)
+    # the arrival rule the supervisor sees: with an EKF, with the estimate's doubt to spare
+    sup.reset(x, scen.goal, scen.arrived if world.ekf is None
+              else lambda xm: scen.arrived(xm, world.arrival_doubt()))
     board_time = world.board_time(ctrl)  # sim.latency=modelled: the controller's model
     log = _StepLog(plant, H, (CPU_COLUMN, SENSE_CPU_COLUMN, *ctrl.log_columns), world, dt)
     # the closest approach between samples, along the path the simulated plant drives

@@ -30,6 +30,21 @@ the way to it: ``x_hat <- x_hat + gain (z - x_hat)`` for those entries only (the
 difference wrapped to ``[-pi, pi)``); the other entries keep the odometry's value.
 ``gain = 1`` resets them to the fix; a smaller gain is a complementary filter (a Kalman
 update with a fixed gain). No covariance is kept.
+
+**EKF** (``source: ekf``, :class:`Ekf`): the odometry's prediction, with one unknown scale
+per input appended to the state (the model answers the measured input ``u`` with
+``u (1 + s)``: a wheel radius known to ``sim.localization.ekf.model_rel_std``, 5 %, learnt
+from the fixes) and the covariance ``P`` carried through the model's step Jacobians. The
+process noise is stated, not tuned: the encoders' errors (``input_std``, ``slip_std``, and
+``quantum`` as a rounding of ``q^2/6`` per period) and the simulated random walk
+(``sim.disturbance``). The correction is the fix above, as a measurement ``z = H x + v`` with
+``v ~ N(0, diag(std^2))``, in Joseph form; ``gain`` is not used. The covariance feeds the
+arrival rule the supervisor sees (the estimate arrives when it is inside the arrival radius by
+the position's one-sided ``sim.noise.confidence`` quantile); it takes no part in the obstacle
+margin, whose points are placed from the same estimate (:mod:`mpclab.world.margin`). The run
+record has the estimate's largest position standard deviation and its consistency: the mean
+normalized estimation error squared (2 for a consistent filter) and the fraction of periods
+whose error lies inside the 95 % ellipse.
 """
 
 from __future__ import annotations
@@ -48,6 +63,7 @@ from mpclab.plants.base import FloatArray, Plant
 class Localization(StrEnum):
     truth = "truth"        # the true state
     odometry = "odometry"  # dead reckoning with the model's parameters
+    ekf = "ekf"            # the odometry's prediction, corrected by the fixes in an EKF
 
 
 def by_state(plant: Plant, given: Mapping[str, Any], key: str) -> dict[int, float]:
@@ -127,11 +143,14 @@ class Odometry:
         noise = (self.input_std * self.rng.standard_normal(nu) if self.input_std.any()
                  else 0.0)
         x = self.estimate
+        #: the pieces integrated: (state at the piece's start, measured input, duration)
+        self.integrated: list[tuple[FloatArray, FloatArray, float]] = []
         for u, duration in pieces:
             if duration <= 0:
                 continue
-            seen = self._count(np.asarray(u, dtype=float), duration)
-            x = self.model.step(x, seen * scale + noise, duration)
+            seen = self._count(np.asarray(u, dtype=float), duration) * scale + noise
+            self.integrated.append((x, seen, duration))
+            x = self.model.step(x, seen, duration)
         self.estimate = x
         return x
 
@@ -198,22 +217,134 @@ class Fix:
         self.count = 0
         self._next_s = math.inf if self.period_s is None else self.period_s
 
-    def correct(self, t: float, x: FloatArray, estimate: FloatArray) -> FloatArray:
-        """The estimate at time ``t`` (the true state ``x``): moved towards a fix if one is
-        due."""
+    def measure(self, t: float, x: FloatArray) -> FloatArray | None:
+        """The fix at time ``t`` of the true state ``x`` (its entries :attr:`index`, with
+        noise), or None when none is due."""
         if t < self._next_s - 1e-9:
-            return estimate
+            return None
         while self._next_s <= t + 1e-9:
             self._next_s += self.period_s
-        z = x[self.index] + self.std * self.rng.standard_normal(len(self.index))
-        gap = z - estimate[self.index]
+        self.count += 1
+        return x[self.index] + self.std * self.rng.standard_normal(len(self.index))
+
+    def innovation(self, z: FloatArray, estimate: FloatArray) -> FloatArray:
+        """``z`` less the estimate's measured entries, the heading's wrapped to [-pi, pi)."""
+        gap = np.asarray(z, dtype=float) - estimate[self.index]
         if self.heading is not None:
             wrap = self.index == self.heading
             gap[wrap] = (gap[wrap] + math.pi) % (2 * math.pi) - math.pi
+        return gap
+
+    def correct(self, t: float, x: FloatArray, estimate: FloatArray) -> FloatArray:
+        """The estimate at time ``t`` (the true state ``x``): moved the fraction ``gain``
+        towards a fix if one is due."""
+        z = self.measure(t, x)
+        if z is None:
+            return estimate
         out = estimate.copy()
-        out[self.index] += self.gain * gap
-        self.count += 1
+        out[self.index] += self.gain * self.innovation(z, estimate)
         return out
 
     def describe(self) -> dict[str, Any]:
         return {"period_s": self.period_s, "gain": self.gain} if self.configured else {}
+
+
+
+class Ekf:
+    """An extended Kalman filter over the controller's model (``sim.localization.source=ekf``;
+    see the module docstring). Its state is the plant's with one scale per input appended:
+    the model's response to the measured input ``u`` is to ``u (1 + s)`` (a wheel whose
+    radius differs from the model's), a constant with the prior standard deviation
+    ``model_rel_std``, learnt from the fixes.
+
+    Parameters
+    ----------
+    model
+        Injected: the controller's model (its step and Jacobians).
+    odometry
+        Injected: the encoders, whose measured inputs drive the prediction.
+    fix
+        Injected: the pose measurements the filter corrects with (their period and noise).
+    walk_std
+        Injected: the stated random walk of the true state, per square-root second
+        (``sim.disturbance.state_std``), a part of the process noise.
+    model_rel_std
+        The prior standard deviation of each input's scale (a wheel radius known to this
+        fraction): the filter's statement, not an error the simulation adds.
+    """
+
+    def __init__(self, model: Plant, odometry: Odometry, fix: Fix, walk_std: FloatArray,
+                 model_rel_std: float = 0.05) -> None:
+        self.model, self.odometry, self.fix = model, odometry, fix
+        self.walk_var = np.asarray(walk_std, dtype=float) ** 2
+        self.model_rel_std = number(model_rel_std, "sim.localization.ekf.model_rel_std",
+                                    at_least=0)
+        self.nx, self.nu = model.nx, model.nu
+        self.P = np.zeros((self.nx + self.nu, self.nx + self.nu))
+        self.scale = np.zeros(self.nu)
+        self._pos = [model.state_index(s) for s in model.position]
+
+    def reset(self) -> None:
+        """Started at the true state (as the odometry), the scales unknown."""
+        self.P[:] = 0.0
+        self.P[self.nx:, self.nx:] = np.eye(self.nu) * self.model_rel_std**2
+        self.scale[:] = 0.0
+
+    def predict(self, dt: float) -> FloatArray:
+        """The estimate after the period the odometry just measured, integrated with the
+        scaled inputs, and its covariance: the period's input errors are held over it, so
+        each enters through its pieces' input Jacobians carried to the period's end."""
+        nx, nu = self.nx, self.nu
+        A_all = np.eye(nx)
+        G_add, G_rel = np.zeros((nx, nu)), np.zeros((nx, nu))
+        x = None
+        for start, seen, duration in self.odometry.integrated:
+            x = start if x is None else x
+            u = seen * (1 + self.scale)
+            A, B = self.model.jacobians(x, u, duration)
+            A_all = A @ A_all
+            G_add = A @ G_add + B
+            G_rel = A @ G_rel + B * seen[None, :]
+            x = self.model.step(x, u, duration)
+        if x is None:
+            return self.odometry.estimate
+        odo = self.odometry
+        q = np.where(odo.quantum > 0, odo.quantum, 0.0)
+        add_var = odo.input_std**2 + q**2 / (6 * dt**2)  # two counts' rounding a period
+        F = np.eye(nx + nu)
+        F[:nx, :nx], F[:nx, nx:] = A_all, G_rel
+        Q = np.zeros_like(self.P)
+        Q[:nx, :nx] = (G_add @ np.diag(add_var) @ G_add.T
+                       + G_rel @ G_rel.T * odo.slip_std**2 + np.diag(self.walk_var * dt))
+        self.P = F @ self.P @ F.T + Q
+        return x
+
+    def correct(self, estimate: FloatArray, z: FloatArray) -> FloatArray:
+        """The estimate (and the scales) after the fix ``z`` of the entries ``fix.index``
+        (Joseph form)."""
+        idx = self.fix.index
+        H = np.zeros((len(idx), self.nx + self.nu))
+        H[np.arange(len(idx)), idx] = 1.0
+        R = np.diag(np.maximum(self.fix.std, 1e-9) ** 2)
+        S = H @ self.P @ H.T + R
+        K = np.linalg.solve(S, H @ self.P).T
+        step = K @ self.fix.innovation(z, estimate)
+        self.scale = self.scale + step[self.nx:]
+        I_KH = np.eye(self.nx + self.nu) - K @ H
+        self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
+        return estimate + step[:self.nx]
+
+    def position_std(self) -> float:
+        """The largest standard deviation of the position estimate [m] (the covariance's
+        position block's largest eigenvalue, square-rooted)."""
+        block = self.P[np.ix_(self._pos, self._pos)]
+        return float(np.sqrt(max(np.linalg.eigvalsh(block)[-1], 0.0)))
+
+    def nees(self, estimate: FloatArray, x: FloatArray) -> float | None:
+        """The position's normalized estimation error squared ``e' P^-1 e`` (chi-square
+        with 2 degrees of freedom for a consistent filter); None while ``P`` is singular."""
+        block = self.P[np.ix_(self._pos, self._pos)]
+        if np.linalg.eigvalsh(block)[0] <= 1e-18:
+            return None
+        e = (np.asarray(estimate) - np.asarray(x))[self._pos]
+        return float(e @ np.linalg.solve(block, e))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -92,8 +93,15 @@ class Scenario:
         """The weighted squared distance the arrival rule compares with the threshold."""
         return float(np.sum(self._arrival_w * (x - self.goal) ** 2))
 
-    def arrived(self, x: FloatArray) -> bool:
-        return self.arrival_distance(x) < self.arrival_threshold
+    def arrived(self, x: FloatArray, doubt: float = 0.0) -> bool:
+        """Whether ``x`` meets the arrival rule; with ``doubt`` [m] (an estimate's uncertainty
+        in position), whether it meets it with ``doubt`` to spare on the position's weights."""
+        if doubt <= 0:
+            return self.arrival_distance(x) < self.arrival_threshold
+        w = max((float(self._arrival_w[self.plant.state_index(s)]) for s in self.plant.position),
+                default=0.0)
+        reach = math.sqrt(self.arrival_threshold) - doubt * math.sqrt(w)
+        return reach > 0 and math.sqrt(self.arrival_distance(x)) < reach
 
     def target(self, t: float, horizon: int, dt: float) -> FloatArray:
         """Reference over the horizon ``(horizon+1, nx)``: here the goal held."""

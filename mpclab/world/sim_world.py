@@ -36,10 +36,11 @@ instant the state was measured, and the simulator integrates the controller's ow
 * **model mismatch** (``plant_params.<name>``, ``substeps``): the simulated plant has other
   parameters (and a finer integrator) than the one the controller predicts with; the same
   ``rhs``.
-* **localization** (``localization.source``: ``truth`` or ``odometry``;
-  ``localization.odometry``, ``localization.fix``): the state the controller and the
-  supervisor see is the true one or a dead-reckoning estimate integrated with the model's
-  parameters, optionally reset towards an absolute fix (:mod:`mpclab.world.localization`);
+* **localization** (``localization.source``: ``truth``, ``odometry`` or ``ekf``;
+  ``localization.odometry``, ``localization.fix``, ``localization.ekf``): the state the
+  controller and the supervisor see is the true one or a dead-reckoning estimate integrated
+  with the model's parameters, optionally reset towards an absolute fix, or that estimate
+  corrected by the fixes in an extended Kalman filter (:mod:`mpclab.world.localization`);
   the noise above is added to it.
 * **actuators** (``actuator.time_constant_s``, ``actuator.rate_limit``): the plant sees the
   output of a first-order lag and/or a rate limit of the command, not the command itself
@@ -56,6 +57,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
@@ -66,7 +68,7 @@ from mpclab.core.options import group
 from mpclab.plants.base import FloatArray, Plant
 from mpclab.world.actuators import Actuator
 from mpclab.world.latency import DeadlinePolicy, Latency, latency_profile_s, parse_latency
-from mpclab.world.localization import Fix, Localization, Odometry, state_stds
+from mpclab.world.localization import Ekf, Fix, Localization, Odometry, state_stds
 
 #: the spawn keys of the world's random streams under the run's seed: noise and
 #: disturbance, recorded latencies, the odometry's errors and fixes
@@ -87,10 +89,11 @@ class DisturbanceConf:
     state_std: dict[str, float] = field(default_factory=dict)
 
 
-def _nested(cls: type, name: str) -> type:
+def _nested(cls: type, name: str, injected: tuple[str, ...] = ()) -> type:
     """The schema of a nested option group: one field per option of ``cls``'s constructor
-    (its injected ``model``, ``plant`` and ``rng`` left out), as a component's."""
-    derived = schema_from_init(cls, ("model", "plant", "rng"))
+    (its injected ``model``, ``plant``, ``rng`` and ``injected`` left out), as a
+    component's."""
+    derived = schema_from_init(cls, ("model", "plant", "rng", *injected))
     schema = dataclasses.make_dataclass(name, [
         (f.name, f.type, dataclasses.field(default=f.default, default_factory=f.default_factory))
         for f in dataclasses.fields(derived) if f.name != "_target_"])
@@ -100,6 +103,7 @@ def _nested(cls: type, name: str) -> type:
 
 OdometryConf = _nested(Odometry, "OdometryConf")
 FixConf = _nested(Fix, "FixConf")
+EkfConf = _nested(Ekf, "EkfConf", ("odometry", "fix", "walk_std"))
 ActuatorConf = _nested(Actuator, "ActuatorConf")
 
 
@@ -141,6 +145,7 @@ class LocalizationConf:
     source: str = "truth"          # truth | odometry
     odometry: OdometryConf = field(default_factory=OdometryConf)  # type: ignore[valid-type]
     fix: FixConf = field(default_factory=FixConf)  # type: ignore[valid-type]
+    ekf: EkfConf = field(default_factory=EkfConf)  # type: ignore[valid-type]
 
 
 @dataclass
@@ -283,12 +288,25 @@ class SimWorld:
             located.get("odometry"), OdometryConf, "sim.localization.odometry"))
         self.fix = Fix(plant, odometry_rng, **_group(
             located.get("fix"), FixConf, "sim.localization.fix"))
-        self.dead_reckoning = self.localization is Localization.odometry
+        self.dead_reckoning = self.localization in (Localization.odometry, Localization.ekf)
         if not self.dead_reckoning and (self.odometry.configured or self.fix.configured):
             what = (f"sim.localization.odometry ({self.odometry.describe()})"
                     if self.odometry.configured
                     else f"sim.localization.fix.period_s={self.fix.period_s:g}")
-            raise ConfigError(f"{what}: acts only with sim.localization.source=odometry, got "
+            raise ConfigError(f"{what}: acts only with sim.localization.source=odometry or "
+                              f"ekf, got sim.localization.source={self.localization.value}")
+        ekf_options = _group(located.get("ekf"), EkfConf, "sim.localization.ekf")
+        self.ekf = None
+        if self.localization is Localization.ekf:
+            if not self.fix.configured:
+                raise ConfigError(
+                    "sim.localization.source=ekf: the filter needs a measurement; set "
+                    "sim.localization.fix.period_s=<s> (and sim.localization.fix.std.position, "
+                    ".heading: its noise)")
+            self.ekf = Ekf(plant, self.odometry, self.fix, self.walk_std, **ekf_options)
+        elif {k: v for k, v in ekf_options.items() if v != getattr(EkfConf(), k)}:
+            raise ConfigError(f"sim.localization.ekf ({ekf_options}): acts only with "
+                              f"sim.localization.source=ekf, got "
                               f"sim.localization.source={self.localization.value}")
         self.actuator = Actuator(**_group(actuator, ActuatorConf, "sim.actuator"))
         #: what the world adds to the loop, decided once: state noise, input latency, a
@@ -319,12 +337,16 @@ class SimWorld:
         self.fix.reset()
         self._t, self._started = 0.0, False
         self._errors: list[float] = []  # the estimate's position error after each period
+        self._stds: list[float] = []    # the EKF's position standard deviation, and ...
+        self._nees: list[float] = []    # ... its normalized estimation error squared
 
     def measure(self, x: FloatArray) -> FloatArray:
         """The state the controller sees at the true state ``x``: ``x`` itself, or the
         odometry's estimate (started at the first ``x``), plus the state noise."""
         if self.dead_reckoning and not self._started:
             self.odometry.reset(x)
+            if self.ekf is not None:
+                self.ekf.reset()
         self._started = True
         seen = self.odometry.estimate.copy() if self.dead_reckoning else x
         if not self.noisy:
@@ -425,10 +447,45 @@ class SimWorld:
         if self.dead_reckoning:
             self._t += dt
             estimate = self.odometry.advance(pieces)
-            self.odometry.estimate = self.fix.correct(self._t, x, estimate)
+            if self.ekf is None:
+                estimate = self.fix.correct(self._t, x, estimate)
+            else:
+                estimate = self.ekf.predict(dt)
+                z = self.fix.measure(self._t, x)
+                if z is not None:
+                    estimate = self.ekf.correct(estimate, z)
+                self._stds.append(self.ekf.position_std())
+                nees = self.ekf.nees(estimate, x)
+                if nees is not None:
+                    self._nees.append(nees)
+            self.odometry.estimate = estimate
             at = [self.model.state_index(label) for label in self.model.position]
             self._errors.append(float(np.linalg.norm(self.odometry.estimate[at] - x[at])))
         return x
+
+    def arrival_doubt(self) -> float:
+        """How far inside the arrival radius the estimate must be for the robot to believe
+        it arrived [m]: the EKF's position standard deviation at the one-sided quantile of
+        ``noise.confidence``; 0 without an EKF."""
+        if self.ekf is None:
+            return 0.0
+        return NormalDist().inv_cdf(self.confidence) * self.ekf.position_std()
+
+    def _ekf_summary(self) -> dict[str, Any]:
+        """The EKF's largest position standard deviation and its consistency (module
+        docstring of :mod:`mpclab.world.localization`)."""
+        if self.ekf is None:
+            return {}
+        nees = np.asarray(self._nees)
+        return {
+            "sim_ekf": {"model_rel_std": self.ekf.model_rel_std},
+            # the input scales learnt (the model's input u acts as u (1 + s))
+            "localization_input_scales": self.ekf.scale.tolist(),
+            "localization_std_max_m": max(self._stds) if self._stds else None,
+            "localization_nees_mean": float(nees.mean()) if len(nees) else None,
+            "localization_inside_95": (float(np.mean(nees <= _chi2_2dof(0.95)))
+                                       if len(nees) else None),
+        }
 
     def describe(self) -> dict[str, Any]:
         """What the run record says of the world (the summary's ``sim_*`` keys)."""
@@ -449,7 +506,13 @@ class SimWorld:
             "localization_error_max_m": max(self._errors) if self._errors else None,
             "localization_error_final_m": self._errors[-1] if self._errors else None,
             "localization_fixes": self.fix.count if self.fix.configured else None,
+            **self._ekf_summary(),
         }
+
+
+def _chi2_2dof(p: float) -> float:
+    """The ``p`` quantile of the chi-square distribution with 2 degrees of freedom."""
+    return -2.0 * math.log(1.0 - p)
 
 
 def _nonneg(value: Any, key: str) -> float:
