@@ -10,7 +10,8 @@ interval (Clopper-Pearson), time-outs, stalls, the least clearance of any run (c
 time) and the CPU time per controller call (median and p95, pooled over every call; CPU
 time, not wall time, so other processes on the machine do not inflate it), and the CPU time
 up to the input (the real-time iteration's feedback; the whole call for any other
-controller). Seeds that
+controller). A second table gives the obstacle margin kept and, where the robot localizes
+by odometry or an EKF, the estimate's error and the filter's consistency. Seeds that
 collided or timed out are listed; with several scenarios, a second table gives each
 scenario's outcome per variant.
 The Markdown (``--md``) is stamped with the command, the git commit, the CPU model, the
@@ -63,6 +64,10 @@ class Outcome:
     #                          iteration's feedback; the whole call for any other controller
     converged: int
     calls: int
+    margin_m: float | None = None  # the obstacle margin the run kept
+    estimate_error_m: float | None = None  # the estimate's largest position error
+    nees: float | None = None  # the EKF's mean normalized estimation error squared
+    inside_95: float | None = None  # ... and the fraction of periods inside its 95 % ellipse
 
 
 def run_one(job: tuple[str, str, int, list[str], str]) -> Outcome:
@@ -77,7 +82,9 @@ def run_one(job: tuple[str, str, int, list[str], str]) -> Outcome:
     s = res.summary
     return Outcome(variant, scenario, seed, s["status"], s["arrival_time_s"],
                    s["min_clearance_m"], cpu, to_input,
-                   int(s.get("solves_converged", 0)), int(s["n_steps"]))
+                   int(s.get("solves_converged", 0)), int(s["n_steps"]),
+                   (s.get("margin") or {}).get("total_m"), s.get("localization_error_max_m"),
+                   s.get("localization_nees_mean"), s.get("localization_inside_95"))
 
 
 def seeds_of(text: str) -> list[int]:
@@ -120,6 +127,28 @@ def table(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
                 where = ", ".join(f"{sc} {seed}" for sc, seed in seeds)
                 notes.append(f"- {name}, {st}: {where}")
     return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def world_table(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str | None:
+    """The margin kept and the localization, one row per variant (medians over the runs);
+    None where no run has either."""
+    fields = ("margin_m", "estimate_error_m", "nees", "inside_95")
+    if not any(getattr(o, f) is not None for o in outcomes for f in fields):
+        return None
+
+    def median(rows: Sequence[Outcome], f: str, scale: float, fmt: str) -> str:
+        v = [getattr(o, f) for o in rows if getattr(o, f) is not None]
+        return format(scale * float(np.median(v)), fmt) if v else "-"
+
+    lines = ["| variant | margin mm (median) | estimate's largest error, median mm | "
+             "EKF mean NEES, median (2: consistent) | EKF inside its 95 % ellipse, median |",
+             "|---|---|---|---|---|"]
+    for name in variants:
+        rows = [o for o in outcomes if o.variant == name]
+        lines.append(f"| {name} | {median(rows, 'margin_m', 1e3, '.1f')} | "
+                     f"{median(rows, 'estimate_error_m', 1e3, '.1f')} | "
+                     f"{median(rows, 'nees', 1, '.2f')} | {median(rows, 'inside_95', 1, '.3f')} |")
+    return "\n".join(lines)
 
 
 def by_scenario(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str:
@@ -183,6 +212,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{args.experiment} on {args.scenario}, {len(seeds)} seeds "
         f"({args.seeds}){', ' + ' '.join(args.set) if args.set else ''}; {over}", "",
         table(outcomes, names), "",
+        *([world, ""] if (world := world_table(outcomes, names)) else []),
         *([by_scenario(outcomes, names), ""] if len(scenarios) > 1 else []),
         stamp(argv), ""])
     print(text)
