@@ -138,3 +138,20 @@ def test_bad_options_name_the_key_and_choices() -> None:
         ObstacleDistance(mode="cbf", gamma=1.5)
     with pytest.raises(ConfigError, match="penalty"):
         ObstacleDistance(penalty=0)
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "fatrop", "sqp"])
+def test_penalty_use_is_the_hard_multiplier_over_the_penalty(solver) -> None:
+    """Where the hard problem is feasible, the soft one's stage multipliers (read on the
+    detected points' rows) are the hard one's: their ratio to the penalty is recorded, and a
+    penalty within 10x of them is warned of."""
+    hard = _mpc({"o": _con("hard")}, solver=solver)
+    hard.step(0.0, X0, _ctx([POINT]))
+    needed = float(np.max(hard._lam_g))  # the point's row at its active stage
+    for penalty, warned in ((1e6, False), (2e5, True)):
+        soft = _mpc({"o": _con("soft", penalty=penalty)}, solver=solver)
+        soft.step(0.0, X0, _ctx([POINT]))
+        m = soft.metrics(None)
+        assert m["slack_steps"] == 0
+        assert m["penalty_use_max"] == pytest.approx(needed / penalty, rel=1e-3)
+        assert (m["penalty_warning"] is not None) is warned

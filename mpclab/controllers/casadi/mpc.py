@@ -328,7 +328,7 @@ class CasadiMPC(Controller):
         ocp = self.ocp
         self._w_prev = w
         if ocp.slack_idx is not None:
-            self._slacks.add(w[ocp.slack_idx].max())
+            self._slacks.add(w[ocp.slack_idx].max(), self._penalty_use(lam_g, p))
         self._lam_x = self.starts.shift_lam_x(lam_x)
         self._lam_g = np.array(lam_g, dtype=float)
         U = self.blocking.expand(w[ocp.u_idx])
@@ -337,6 +337,20 @@ class CasadiMPC(Controller):
             u=U[0].copy(), x_pred=X, u_pred=U, status=status, cost=cost,
             solver_status=raw, iterations=iters,
         )
+
+    def _penalty_use(self, lam_g: FloatArray, p: FloatArray) -> float:
+        """The largest sum of a soft constraint's multipliers at one stage over its penalty
+        (:class:`~mpclab.controllers.constrained.SlackLog`), over the rows of detected points
+        only: a padding point's row reads ``0 <= s_k`` and shares the slack's bound
+        degenerately, so an interior-point solver spreads multiplier over it."""
+        ocp, lam = self.ocp, np.clip(np.asarray(lam_g, dtype=float), 0.0, None)
+        mask = np.asarray(p, dtype=float)[ocp.params.indices("mask")]
+        soft = [c for c in self.constraints if c.soft]
+        use = 0.0
+        for (_, j), rows in ocp.soft_rows.items():
+            weight = mask if rows.size == mask.size else 1.0
+            use = max(use, float(np.sum(lam[rows] * weight)) / soft[j].penalty)
+        return use
 
     def _solve_rti(self, x: FloatArray, ctx: StepContext, nlp: _NLP) -> ControlStep:
         """The real-time iteration's step (:class:`RtiLoop`): the next sample's QP is

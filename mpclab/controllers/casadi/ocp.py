@@ -114,6 +114,8 @@ class OCP:
     s_idx: np.ndarray | None   # (T+1, nu) indices of the lifted inputs-before (or None)
     slack_idx: np.ndarray | None  # (T, n_soft) indices of the soft constraints' slacks
     slack_fn: ca.Function | None  # (w, p) -> the slacks' penalty (None without soft ones)
+    #: (stage k = 1..T, soft constraint j) -> the rows of g that share the slack s_k[j]
+    soft_rows: dict[tuple[int, int], np.ndarray]
     plan_fn: ca.Function       # (w, p) -> X (nx, T+1)
     #: the rows that fix the states (multiple shooting: the initial value, then each gap), in
     #: the order of the states they fix; empty under single shooting
@@ -162,6 +164,7 @@ def build_ocp(
     lbg: list[np.ndarray] = []
     ubg: list[np.ndarray] = []
     dynamics: list[np.ndarray] = []
+    soft_rows: dict[tuple[int, int], np.ndarray] = {}
     count = [0]  # rows so far
 
     def add(expr: Any, lo: Any, hi: Any, fixes_states: bool = False) -> None:
@@ -186,9 +189,12 @@ def build_ocp(
         j = 0
         for c, par in zip(constraints, cpar, strict=True):
             slack = Sl[k][j] if c.soft and k in Sl else None
-            j += int(c.soft)
             if c.couples_stages is coupled:
+                first = count[0]
                 add(c.casadi_rows(xk, x_next, slack, ctx, par, k == 0), -np.inf, 0.0)
+                if slack is not None:
+                    soft_rows[k, j] = np.arange(first, count[0])
+            j += int(c.soft)
 
     inf = np.full(nx, np.inf)
     w_parts, lbw, ubw, where = [], [], [], {}
@@ -260,6 +266,7 @@ def build_ocp(
         equality=[bool(v) for v in (lo == hi)], lbw=np.concatenate(lbw),
         ubw=np.concatenate(ubw), x_idx=x_idx, u_idx=u_idx, s_idx=s_idx,
         slack_idx=slack_idx, slack_fn=ca.Function("penalty", [w, p], [pen]) if soft else None,
+        soft_rows=soft_rows,
         plan_fn=ca.Function("plan", [w, p], [X]),
         dynamics_rows=np.concatenate(dynamics) if dynamics else np.zeros(0, dtype=int),
     )
