@@ -144,3 +144,13 @@ def test_bug2_path_runs_outside_a_larger_margin() -> None:
     assert run.supervisor.clearance == pytest.approx(R + 0.015)
     assert run.supervisor.least_clearance == pytest.approx(R + 0.005)
     assert run.supervisor.run_link == pytest.approx(0.16)
+
+
+def test_the_record_says_what_distance_was_kept(run_cfg) -> None:
+    derived, _ = run_cfg([*BASE, "scenario.t_max=0.4"], name="derived")
+    stated, _ = run_cfg([*BASE, "scenario.t_max=0.4",
+                         "objective.constraints.obstacles.distance=0.065"], name="stated")
+    d, s = derived.summary["margin"], stated.summary["margin"]
+    assert d["kept_m"] == pytest.approx(d["total_m"]) and not d["stated"]
+    assert s["kept_m"] == pytest.approx(0.065) and s["stated"]
+    assert s["total_m"] == pytest.approx(d["total_m"])  # still derived, to compare

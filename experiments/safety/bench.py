@@ -64,7 +64,7 @@ class Outcome:
     #                          iteration's feedback; the whole call for any other controller
     converged: int
     calls: int
-    margin_m: float | None = None  # the obstacle margin the run kept
+    margin_m: float | None = None  # the distance the run's obstacle constraint kept
     estimate_error_m: float | None = None  # the estimate's largest position error
     nees: float | None = None  # the EKF's mean normalized estimation error squared
     inside_95: float | None = None  # ... and the fraction of periods inside its 95 % ellipse
@@ -83,7 +83,7 @@ def run_one(job: tuple[str, str, int, list[str], str]) -> Outcome:
     return Outcome(variant, scenario, seed, s["status"], s["arrival_time_s"],
                    s["min_clearance_m"], cpu, to_input,
                    int(s.get("solves_converged", 0)), int(s["n_steps"]),
-                   (s.get("margin") or {}).get("total_m"), s.get("localization_error_max_m"),
+                   (s.get("margin") or {}).get("kept_m"), s.get("localization_error_max_m"),
                    s.get("localization_nees_mean"), s.get("localization_inside_95"))
 
 
@@ -140,7 +140,7 @@ def world_table(outcomes: Sequence[Outcome], variants: Sequence[str]) -> str | N
         v = [getattr(o, f) for o in rows if getattr(o, f) is not None]
         return format(scale * float(np.median(v)), fmt) if v else "-"
 
-    lines = ["| variant | margin mm (median) | estimate's largest error, median mm | "
+    lines = ["| variant | distance kept mm (median) | estimate's largest error, median mm | "
              "EKF mean NEES, median (2: consistent) | EKF inside its 95 % ellipse, median |",
              "|---|---|---|---|---|"]
     for name in variants:

@@ -67,6 +67,9 @@ class Run:
     margin: MarginBudget | None = None
     #: why the margin left no way to the goal, for a run made anyway (no_room=run)
     no_room: str | None = None
+    #: what keeps the margin: the obstacle constraint, else the safety filter (its
+    #: ``distance``, derived or ``stated``)
+    keeper: Any = None
 
 
 @dataclass

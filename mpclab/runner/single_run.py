@@ -125,8 +125,9 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
     cols = tuple(c for c in controller.log_columns if c not in filter_cols)
     controller.log_columns = (*cols, *filter_cols) if sf else cols
     recorder = build(cfg.recorder, "recorder", out_dir=out_dir, cfg=cfg)
-    kept = budget if obstacles or controller.safety_filter is not None else None
-    return Run(plant, controller, scenario, supervisor, recorder, world, kept, no_room)
+    keeper = next(iter(obstacles), controller.safety_filter)  # what keeps the margin
+    kept = budget if keeper is not None else None
+    return Run(plant, controller, scenario, supervisor, recorder, world, kept, no_room, keeper)
 
 
 def run_experiment(
@@ -172,7 +173,7 @@ def run_experiment(
         **(run.controller.blocking.summary() if run.controller.blocking else {}),
         PROBLEM_KEY: getattr(run.controller.solved_problem, "value", None),
         # the obstacle margin's parts (mpclab.world.margin), and why there was no room
-        "margin": run.margin.describe() if run.margin is not None else None,
+        "margin": _margin_record(run),
         "margin_no_room": run.no_room,
         "versions": record.versions(),
     }
@@ -194,6 +195,15 @@ def run_experiment(
             plot_run(result, run, out_dir, dpi=cfg.figures.dpi)
     result.summary["timing"]["write_s"] = time.perf_counter() - t2
     return result
+
+
+def _margin_record(run: Run) -> dict | None:
+    """The summary's ``margin``: the derived budget's parts, and the distance the obstacle
+    constraint (else the safety filter) kept: the derived total, or one stated by hand."""
+    if run.margin is None or run.keeper is None:
+        return None
+    return {**run.margin.describe(), "kept_m": run.keeper.distance,
+            "stated": bool(run.keeper.stated)}
 
 
 def resolved_yaml(cfg: DictConfig) -> str:
