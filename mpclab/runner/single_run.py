@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from collections.abc import Sequence
@@ -13,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 from mpclab.config.allowed_targets import check_config
 from mpclab.config.instantiate import build
 from mpclab.config.key_origin import RunOrigin, where_set
+from mpclab.config.registry import require_registered
 from mpclab.config.root import CONF_DIR
 from mpclab.constraints.obstacle import ObstacleDistance
 from mpclab.core.errors import ConfigError, number
@@ -23,6 +25,8 @@ from mpclab.runner.loop import Run, RunInterrupted, RunResult, simulate
 from mpclab.runner.progress import RunProgress
 from mpclab.world import margin
 from mpclab.world.zumo_world import ObstacleScenario
+
+log = logging.getLogger("mpclab")
 
 
 def compose(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> DictConfig:
@@ -95,7 +99,7 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
     world = build(cfg.sim, "sim", plant=plant, seed=int(cfg.seed), dt=dt)
     # the obstacle margin from the world's stated bounds, before the controller that keeps it
     budget = (margin.derive(plant, scenario, world, dt)
-              if isinstance(scenario, ObstacleScenario) else None)
+              if isinstance(scenario, ObstacleScenario) and _keeps_a_margin(cfg) else None)
     reused = cache.lookup(cfg, budget) if cache is not None else None
     if reused is not None:
         objective, controller = reused
@@ -109,7 +113,7 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
             no_room = margin.check_room(scenario, con.distance, con.budget, con.no_room,
                                         int(cfg.seed))
     if no_room:
-        print(f"warning: {no_room}", file=sys.stderr)
+        log.warning("%s", no_room)
     supervisor = build(cfg.supervisor, "supervisor", plant=plant, objective=objective)
     if reused is None:
         controller = build(cfg.controller, "controller", plant=plant, objective=objective,
@@ -128,6 +132,18 @@ def _build_run(cfg: DictConfig, out_dir: Path | None, cache: ComponentCache | No
     keeper = next(iter(obstacles), controller.safety_filter)  # what keeps the margin
     kept = budget if keeper is not None else None
     return Run(plant, controller, scenario, supervisor, recorder, world, kept, no_room, keeper)
+
+
+def _keeps_a_margin(cfg: DictConfig) -> bool:
+    """Whether the run keeps an obstacle margin: an obstacle distance constraint in the
+    objective, or a safety filter."""
+    if cfg.get("safety_filter"):
+        return True
+    constraints = cfg.objective.get("constraints") or {}
+    targets = [require_registered(node["_target_"], f"objective.constraints.{name}")
+               for name, node in constraints.items()
+               if isinstance(node, DictConfig) and "_target_" in node]
+    return any(isinstance(t, type) and issubclass(t, ObstacleDistance) for t in targets)
 
 
 def run_experiment(
