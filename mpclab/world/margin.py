@@ -347,7 +347,8 @@ def check_room(scenario: Any, distance: float, budget: MarginBudget | None,
     message = (
         f"scenario {scenario.name!r} (seed {seed}): the obstacle margin {what} leaves no way "
         f"from the start to the goal (the robot would keep {distance - scenario.robot_radius:.3g}"
-        f" m from every obstacle); lower sim.noise, sim.latency or sim.disturbance, state "
+        f" m from every obstacle); lower sim.noise, sim.latency or sim.disturbance, compensate "
+        f"the latency (sim.timing.delay_compensation=true), state "
         f"objective.constraints.obstacles.distance=<metres>, or run it anyway with "
         f"objective.constraints.obstacles.no_room=run")
     if policy is NoRoom.refuse:
