@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from conftest import compose_cfg
 from mpclab.core.errors import ConfigError
@@ -14,6 +15,7 @@ from mpclab.plants.zumo import Zumo
 from mpclab.runner.component_cache import ComponentCache
 from mpclab.runner.single_run import build_run
 from mpclab.world import margin
+from mpclab.world.free_space import reachable
 
 ZUMO = Zumo(input_bounds={"u1": [-10, 10], "u2": [-10, 10]})
 X0 = np.zeros(3)
@@ -154,3 +156,16 @@ def test_the_record_says_what_distance_was_kept(run_cfg) -> None:
     assert d["kept_m"] == pytest.approx(d["total_m"]) and not d["stated"]
     assert s["kept_m"] == pytest.approx(0.065) and s["stated"]
     assert s["total_m"] == pytest.approx(d["total_m"])  # still derived, to compare
+
+
+def test_reachable_cells_equal_scipys_labelling() -> None:
+    """The room check's flood fill (runs filled along rows, then columns) against scipy's
+    connected-component labelling, on 300 random grids."""
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n, m = rng.integers(1, 40, 2)
+        free = rng.random((n, m)) < rng.uniform(0.3, 0.9)
+        seeds = rng.random((n, m)) < 0.03
+        labels, _ = ndimage.label(free)
+        want = free & np.isin(labels, np.unique(labels[seeds & free]))
+        assert np.array_equal(reachable(free, seeds), want)
