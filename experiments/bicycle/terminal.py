@@ -13,7 +13,9 @@ terminal cost gives ``V_{k+1} <= V_k - l_k`` (``l_k``: the stage cost the first 
 spent, the state's at ``k+1`` and the input at ``k``) for the nominal model where the
 shifted plan stays feasible. The table gives how many steps kept that decrease (within
 ``1e-6`` of ``V_k``, the solver's tolerance), how many kept ``V_{k+1} <= V_k`` at least, and
-the largest excess ``(V_{k+1} - V_k + l_k) / V_k`` where it failed. The Markdown is stamped.
+how many of the steps where the value rose had an input at its bound (where the LQR's tail
+would break the bounds: the argument then needs a terminal set), and the largest excess
+``(V_{k+1} - V_k + l_k) / V_k`` where the decrease failed. The Markdown is stamped.
 """
 
 from __future__ import annotations
@@ -67,8 +69,10 @@ def check(overrides: Sequence[str], out: Path) -> dict[str, float]:
     excess = V[1:] - V[:-1] + spent
     kept = excess <= TOL * np.maximum(V[:-1], 1.0)
     worst = excess / np.maximum(V[:-1], 1e-12)
+    rose = V[1:] > V[:-1] * (1 + TOL)
+    at_bound = np.any((U[:-1] <= plant.u_lb + 1e-6) | (U[:-1] >= plant.u_ub - 1e-6), axis=1)
     return {"steps": len(V) - 1, "kept": int(kept.sum()),
-            "decreased": int(np.sum(V[1:] <= V[:-1] * (1 + TOL))),
+            "decreased": int(np.sum(~rose)), "rose_at_bound": int(np.sum(rose & at_bound)),
             "worst": float(worst[~kept].max()) if (~kept).any() else 0.0,
             "failed": int(np.sum(steps["status"].astype(str) != "converged")),
             "arrived": res.summary["status"] == "arrived",
@@ -84,8 +88,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--md", type=Path)
     args = ap.parse_args(argv[1:])
     lines = ["| variant | runs | steps | solves not converged | steps keeping V(k+1) <= V(k) - "
-             "l(k) | steps with V(k+1) <= V(k) | largest excess, relative to V(k) | "
-             "largest final lateral error [m] |", "|---|---|---|---|---|---|---|---|"]
+             "l(k) | steps with V(k+1) <= V(k) | of the others, at an input bound | "
+             "largest excess, relative to V(k) | largest final lateral error [m] |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name, extra in VARIANTS:
         rows = [check([*start(seed), *extra], Path(args.out) / name.replace(" ", "_")
                       / f"seed_{seed}") for seed in range(args.runs)]
@@ -95,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{sum(r['kept'] for r in rows)} ({sum(r['kept'] for r in rows) / steps:.3f}) | "
             f"{sum(r['decreased'] for r in rows)} "
             f"({sum(r['decreased'] for r in rows) / steps:.3f}) | "
+            f"{sum(r['rose_at_bound'] for r in rows)} | "
             f"{max(r['worst'] for r in rows):.3g} | {max(r['final_py'] for r in rows):.3g} |")
     text = "\n".join([f"{args.runs} random starts regulated to the straight path at 2 m/s "
                       "(experiments/bicycle/terminal.py)", "", *lines, "", stamp(argv), ""])
