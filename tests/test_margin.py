@@ -116,7 +116,7 @@ def test_a_margin_with_no_room_is_refused_with_its_parts() -> None:
     assert run.no_room and "no way" in run.no_room
     stated = build_run(compose_cfg([*BASE, *CLOSED, "sim.latency=150",
                                     "objective.constraints.obstacles.distance=0.07"]))
-    assert stated.controller.objective.constraints["obstacles"].distance == 0.07
+    assert stated.controller.objective.constraints["obstacles"].distance == pytest.approx(0.07)
     with pytest.raises(ConfigError, match="sim.noise.confidence"):
         _budget(["sim.noise.confidence=1.5"])
 
