@@ -58,6 +58,7 @@ from mpclab.constraints.obstacle import NoRoom
 from mpclab.core.errors import ConfigError
 from mpclab.plants.base import FloatArray, Plant
 from mpclab.world.latency import Latency
+from mpclab.world.sensor import ray_disc_distances
 
 #: inputs per bound interval of the grid the travel and the path's bow are taken over
 _INPUT_GRID = 5
@@ -181,18 +182,15 @@ def _ray_table(radius: float, n_rays: int, max_range: float,
                   (radii[:, None] * np.sin(heads)).ravel()], axis=1)      # positions reached
     dq_all, dt_all = [], []
     for centre in np.linspace(radius + 1e-4, max_range + radius, 60):
-        c = np.array([centre, 0.0])
-        dtrue = np.hypot(*(P - c).T) - radius
+        dtrue = np.hypot(P[:, 0] - centre, P[:, 1]) - radius
+        disc = np.array([[centre, 0.0, radius]])
         for offset in np.linspace(0.0, dphi, 16, endpoint=False):
             ang = offset + dphi * np.arange(n_rays)
-            d = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-            b = d @ c
-            disc = b**2 - (centre**2 - radius**2)
-            t = b - np.sqrt(np.maximum(disc, 0.0))
-            hit = (disc >= 0) & (t >= 0) & (t <= max_range)
+            t = ray_disc_distances((0.0, 0.0), ang, disc)  # the sensor's own geometry
+            hit = t <= max_range
             if not hit.any():
                 continue
-            Q = d[hit] * t[hit, None]
+            Q = np.stack([np.cos(ang[hit]), np.sin(ang[hit])], axis=1) * t[hit, None]
             dq = np.min(np.hypot(P[:, None, 0] - Q[None, :, 0], P[:, None, 1] - Q[None, :, 1]),
                         axis=1)
             dq_all.append(dq)
