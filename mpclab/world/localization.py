@@ -136,20 +136,21 @@ class Odometry:
         self._travel[:] = 0.0
         self._counted[:] = 0.0
 
-    def advance(self, pieces: Sequence[tuple[FloatArray, float]]) -> FloatArray:
-        """The estimate after the period's ``pieces`` ``[(applied input, duration)]``."""
+    def measure(self, pieces: Sequence[tuple[FloatArray, float]],
+                ) -> list[tuple[FloatArray, float]]:
+        """What the encoders measure of the period's ``pieces`` ``[(applied input,
+        duration)]``: ``[(measured input, duration)]``, the pieces of no length left out."""
         nu = self.model.nu
         scale = 1 + self.slip_std * self.rng.standard_normal(nu) if self.slip_std > 0 else 1.0
         noise = (self.input_std * self.rng.standard_normal(nu) if self.input_std.any()
                  else 0.0)
+        return [(self._count(np.asarray(u, dtype=float), duration) * scale + noise, duration)
+                for u, duration in pieces if duration > 0]
+
+    def advance(self, pieces: Sequence[tuple[FloatArray, float]]) -> FloatArray:
+        """The estimate after the period's ``pieces`` ``[(applied input, duration)]``."""
         x = self.estimate
-        #: the pieces integrated: (state at the piece's start, measured input, duration)
-        self.integrated: list[tuple[FloatArray, FloatArray, float]] = []
-        for u, duration in pieces:
-            if duration <= 0:
-                continue
-            seen = self._count(np.asarray(u, dtype=float), duration) * scale + noise
-            self.integrated.append((x, seen, duration))
+        for seen, duration in self.measure(pieces):
             x = self.model.step(x, seen, duration)
         self.estimate = x
         return x
@@ -290,24 +291,22 @@ class Ekf:
         self.P[self.nx:, self.nx:] = np.eye(self.nu) * self.model_rel_std**2
         self.scale[:] = 0.0
 
-    def predict(self, dt: float) -> FloatArray:
-        """The estimate after the period the odometry just measured, integrated with the
-        scaled inputs, and its covariance: the period's input errors are held over it, so
-        each enters through its pieces' input Jacobians carried to the period's end."""
+    def predict(self, pieces: Sequence[tuple[FloatArray, float]], dt: float) -> FloatArray:
+        """The estimate after the period's ``pieces`` ``[(applied input, duration)]``, from
+        the odometry's, integrated with the encoders' measured inputs scaled, and its
+        covariance: the period's input errors are held over it, so each enters through its
+        pieces' input Jacobians carried to the period's end."""
         nx, nu = self.nx, self.nu
         A_all = np.eye(nx)
         G_add, G_rel = np.zeros((nx, nu)), np.zeros((nx, nu))
-        x = None
-        for start, seen, duration in self.odometry.integrated:
-            x = start if x is None else x
+        x = self.odometry.estimate
+        for seen, duration in self.odometry.measure(pieces):
             u = seen * (1 + self.scale)
             A, B = self.model.jacobians(x, u, duration)
             A_all = A @ A_all
             G_add = A @ G_add + B
             G_rel = A @ G_rel + B * seen[None, :]
             x = self.model.step(x, u, duration)
-        if x is None:
-            return self.odometry.estimate
         odo = self.odometry
         q = np.where(odo.quantum > 0, odo.quantum, 0.0)
         add_var = odo.input_std**2 + q**2 / (6 * dt**2)  # two counts' rounding a period

@@ -446,11 +446,10 @@ class SimWorld:
             x = x + self.walk_std * math.sqrt(dt) * self.rng.standard_normal(x.shape)
         if self.dead_reckoning:
             self._t += dt
-            estimate = self.odometry.advance(pieces)
             if self.ekf is None:
-                estimate = self.fix.correct(self._t, x, estimate)
+                estimate = self.fix.correct(self._t, x, self.odometry.advance(pieces))
             else:
-                estimate = self.ekf.predict(dt)
+                estimate = self.ekf.predict(pieces, dt)
                 z = self.fix.measure(self._t, x)
                 if z is not None:
                     estimate = self.ekf.correct(estimate, z)
